@@ -1,0 +1,194 @@
+r"""Observation encoder :math:`e_\omega : o \mapsto z` (Section 3, Fig. 14 and Figs. 16-17).
+
+Vector keys go through MLP coders, 64x64 RGB keys through the paper's CNN coder; the coders'
+outputs are either fused by a latent MLP (default) or kept as one latent block per key
+(compartmentalised, so that a reward can read a subset of the latent).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+import torch.nn.functional as F
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import Tensor, nn
+
+from torchrl_mpail2.modules._mlp import mlp
+
+IMAGE_SIZE = 64
+IMAGE_CHANNELS = 3
+_CNN_STRIDES = (2, 2, 2, 1)
+_CNN_KERNEL = 3
+
+
+def is_image_shape(shape: Sequence[int]) -> bool:
+    """True for channels-first RGB images ``[3, H, W]``."""
+    return len(shape) == 3 and shape[0] == IMAGE_CHANNELS
+
+
+class VectorCoder(nn.Sequential):
+    """``Linear -> SiLU -> Linear -> LayerNorm -> SiLU`` (Fig. 14, ``Coder``)."""
+
+    def __init__(self, in_dim: int, hidden: int, out_dim: int):
+        super().__init__(nn.Linear(in_dim, hidden), nn.SiLU(), nn.Linear(hidden, out_dim), nn.LayerNorm(out_dim), nn.SiLU())
+
+
+class ImageCoder(nn.Module):
+    """Four 3x3 convolutions (strides 2, 2, 2, 1, SiLU), flatten, ``Linear -> SiLU`` (Fig. 14, ``CNNCoder``).
+
+    Accepts uint8 images in ``[0, 255]`` or float images in ``[0, 1]``, channels first ``[*B, 3, H, W]``.
+    """
+
+    def __init__(self, image_shape: Sequence[int], channels: int, out_dim: int):
+        super().__init__()
+        layers: list[nn.Module] = []
+        in_ch = image_shape[0]
+        for stride in _CNN_STRIDES:
+            layers += [nn.Conv2d(in_ch, channels, _CNN_KERNEL, stride=stride), nn.SiLU()]
+            in_ch = channels
+        self.convs = nn.Sequential(*layers, nn.Flatten())
+        with torch.no_grad():
+            flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # 800 for 64x64 inputs
+        self.out = nn.Sequential(nn.Linear(flat, out_dim), nn.SiLU())
+
+    def forward(self, image: Tensor) -> Tensor:
+        batch = image.shape[:-3]
+        x = image.reshape(-1, *image.shape[-3:])
+        x = x.float() / 255.0 if not torch.is_floating_point(x) else x
+        y = self.out(self.convs(x - 0.5))  # centre pixel values around zero
+        return y.reshape(*batch, -1)
+
+
+class EncoderNet(nn.Module):
+    """Tensor-level encoder: ``forward(*observations) -> z`` in the order of ``keys``.
+
+    Args:
+        observation_shapes (Mapping[str, Sequence[int]]): per-key shapes (vector ``[D]`` or image ``[3, 64, 64]``).
+        latent_dim (int): ``Z`` (fused mode) or the total of the per-key blocks (compartmentalised).
+        hidden_dims (Sequence[int]): hidden widths of the fusion MLP.
+        vector_coder_hidden (int): hidden width of vector coders.
+        coder_dim (int): output width of each coder.
+        cnn_channels (int): channels of the image coder.
+        fuse_latent (bool): fused (True) or compartmentalised (False) latent.
+        obs_clip (float): clip of normalised vector observations.
+    """
+
+    def __init__(self, observation_shapes: Mapping[str, Sequence[int]], latent_dim: int, hidden_dims: Sequence[int],
+                 vector_coder_hidden: int = 256, coder_dim: int = 512, cnn_channels: int = 32,
+                 fuse_latent: bool = True, obs_clip: float = 5.0):
+        super().__init__()
+        if not observation_shapes:
+            raise ValueError("the encoder needs at least one observation key")
+        self.keys = list(observation_shapes)
+        self.shapes = {k: tuple(int(s) for s in v) for k, v in observation_shapes.items()}
+        self.latent_dim, self.fuse_latent, self.obs_clip = latent_dim, fuse_latent, obs_clip
+        self.coders = nn.ModuleDict()
+        for key, shape in self.shapes.items():
+            if is_image_shape(shape):
+                self.coders[key] = ImageCoder(shape, cnn_channels, coder_dim)
+            elif len(shape) == 1:
+                self.coders[key] = VectorCoder(shape[0], vector_coder_hidden, coder_dim)
+                self.register_buffer(f"obs_mean_{key}", torch.zeros(shape))
+                self.register_buffer(f"obs_std_{key}", torch.ones(shape))
+            else:
+                raise ValueError(f"observation {key!r}: expected a vector [D] or an image [3, 64, 64], got {list(shape)}")
+        if fuse_latent:
+            self.latent_coder = mlp(coder_dim * len(self.keys), hidden_dims, latent_dim, out_norm=True)
+            self.latent_slices = {k: slice(0, latent_dim) for k in self.keys}
+        else:
+            # One LayerNorm'd block per key; blocks split latent_dim as evenly as possible.
+            sizes = [latent_dim // len(self.keys) + (i < latent_dim % len(self.keys)) for i in range(len(self.keys))]
+            if min(sizes) == 0:
+                raise ValueError(f"latent_dim {latent_dim} is too small for {len(self.keys)} compartments")
+            self.blocks = nn.ModuleDict({k: nn.Sequential(nn.Linear(coder_dim, n), nn.LayerNorm(n)) for k, n in zip(self.keys, sizes)})
+            starts = [sum(sizes[:i]) for i in range(len(sizes))]
+            self.latent_slices = {k: slice(s, s + n) for k, s, n in zip(self.keys, starts, sizes)}
+
+    @property
+    def vector_keys(self) -> list[str]:
+        return [k for k in self.keys if len(self.shapes[k]) == 1]
+
+    def set_normalization(self, stats: Mapping[str, tuple[Tensor, Tensor]]) -> None:
+        """Sets the fixed (mean, std) of vector keys, e.g. from demonstration statistics."""
+        for key, (mean, std) in stats.items():
+            if key not in self.vector_keys:
+                raise KeyError(f"no vector observation {key!r} to normalise; vector keys: {self.vector_keys}")
+            buf = getattr(self, f"obs_mean_{key}")
+            mean, std = torch.as_tensor(mean, dtype=buf.dtype), torch.as_tensor(std, dtype=buf.dtype)
+            if mean.shape != buf.shape or std.shape != buf.shape:
+                raise ValueError(f"normalisation of {key!r}: expected shape {list(buf.shape)}, got mean {list(mean.shape)}, std {list(std.shape)}")
+            buf.copy_(mean)
+            getattr(self, f"obs_std_{key}").copy_(std.clamp_min(1e-6))
+
+    def encode_key(self, key: str, x: Tensor) -> Tensor:
+        if len(self.shapes[key]) == 1:
+            mean, std = getattr(self, f"obs_mean_{key}"), getattr(self, f"obs_std_{key}")
+            x = ((x - mean) / std).clamp(-self.obs_clip, self.obs_clip)
+        return self.coders[key](x)
+
+    def forward(self, *observations: Tensor) -> Tensor:
+        """Observations ordered as ``keys`` (each ``[*B, *shape]``) -> ``z [*B, Z]``."""
+        feats = [self.encode_key(k, x) for k, x in zip(self.keys, observations)]
+        if self.fuse_latent:
+            return self.latent_coder(torch.cat(feats, dim=-1))
+        return torch.cat([self.blocks[k](f) for k, f in zip(self.keys, feats)], dim=-1)
+
+
+def validate_observations(td: TensorDictBase, shapes: Mapping[str, Sequence[int]], where: str = "observation") -> None:
+    """Raises a clear error when a key is missing, has the wrong trailing shape, or holds NaN/Inf.
+
+    One host sync per call: meant for inputs entering the agent (acting, demonstrations), not for inner loops.
+    """
+    for key, shape in shapes.items():
+        value = td.get(key, None)
+        if value is None:
+            raise KeyError(f"{where}: missing key {key!r} (expected shape [*B, {', '.join(map(str, shape))}]); present: {list(td.keys(True, True))}")
+        if tuple(value.shape[value.dim() - len(shape):]) != tuple(shape) or value.dim() < len(shape):
+            raise ValueError(f"{where} {key!r}: expected shape [*B, {', '.join(map(str, shape))}], got {list(value.shape)}")
+        if torch.is_floating_point(value) and not bool(torch.isfinite(value).all()):
+            raise ValueError(f"{where} {key!r} contains NaN or Inf values")
+
+
+class ObservationEncoder(TensorDictModuleBase):
+    r"""Encoder :math:`z_t = e_\omega(o_t)` as a TensorDict module (reads the observation keys, writes ``"z"``).
+
+    Trained only through the JEP dynamics loss (Eq. 2) in MPAIL2.
+
+    Args:
+        observation_shapes (Mapping[str, Sequence[int]]): per-key shapes; see :class:`EncoderNet`.
+        latent_dim (int): ``Z``.
+        hidden_dims (Sequence[int]): fusion MLP widths.
+
+    Keyword Args:
+        out_key: defaults to ``"z"``.
+        **kwargs: forwarded to :class:`EncoderNet`.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> enc = ObservationEncoder({"proprio": [8], "camera": [3, 64, 64]}, latent_dim=16, hidden_dims=[32],
+        ...                          coder_dim=32, vector_coder_hidden=32)
+        >>> td = TensorDict({"proprio": torch.zeros(2, 8), "camera": torch.zeros(2, 3, 64, 64, dtype=torch.uint8)}, [2])
+        >>> enc(td)["z"].shape
+        torch.Size([2, 16])
+    """
+
+    def __init__(self, observation_shapes: Mapping[str, Sequence[int]], latent_dim: int, hidden_dims: Sequence[int], *,
+                 out_key="z", **kwargs):
+        super().__init__()
+        self.net = EncoderNet(observation_shapes, latent_dim, hidden_dims, **kwargs)
+        self.in_keys = list(self.net.keys)
+        self.out_keys = [out_key]
+
+    @property
+    def observation_shapes(self) -> dict[str, tuple[int, ...]]:
+        return dict(self.net.shapes)
+
+    def encode(self, td: TensorDictBase, prefix: tuple[str, ...] = ()) -> Tensor:
+        """Encodes the observation keys found under ``prefix`` (e.g. ``("next",)``) without validation."""
+        return self.net(*(td.get((*prefix, k)) for k in self.in_keys))
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        validate_observations(tensordict, self.net.shapes)
+        tensordict.set(self.out_keys[0], self.encode(tensordict))
+        return tensordict

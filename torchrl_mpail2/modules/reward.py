@@ -1,0 +1,81 @@
+r"""Inferred transition reward :math:`r_\theta : (z, z') \mapsto \mathbb R` (Eq. 3), a WGAN critic."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from tensordict.nn import TensorDictModule
+from torch import Tensor, nn
+
+from torchrl_mpail2.modules._mlp import check_last_dim, mlp
+
+
+class RewardNet(nn.Module):
+    r"""MLP critic :math:`r_\theta(z, z')` with no LayerNorm and no output bias (Table 4, Fig. 14).
+
+    The first Linear acts on ``[z, z']``; it is applied as ``W_z z + W_{z'} z' + b`` so that a caller
+    scoring a chain of latents can project each latent once (:meth:`project` / :meth:`from_projection`).
+
+    Args:
+        latent_dim (int): ``Z`` of the full latent.
+        hidden_dims (Sequence[int]): hidden widths.
+        latent_index (Sequence[int], optional): latent coordinates the reward reads
+            (the compartmentalised encoder's reward-visible blocks); ``None`` reads all of them.
+    """
+
+    def __init__(self, latent_dim: int, hidden_dims: Sequence[int], latent_index: Sequence[int] | None = None):
+        super().__init__()
+        self.latent_dim = latent_dim
+        if latent_index is not None:
+            self.register_buffer("latent_index", torch.as_tensor(list(latent_index), dtype=torch.long), persistent=False)
+        else:
+            self.latent_index = None
+        in_dim = latent_dim if latent_index is None else len(latent_index)
+        self.in_dim = in_dim
+        self.net = mlp(2 * in_dim, hidden_dims, 1, layer_norm=False, out_bias=False)
+
+    def _select(self, z: Tensor) -> Tensor:
+        check_last_dim("reward input latent", z, self.latent_dim)
+        return z if self.latent_index is None else z.index_select(-1, self.latent_index)
+
+    def project(self, z: Tensor) -> tuple[Tensor, Tensor]:
+        """First-layer projections of ``z`` as the current (``W_z z + b``) and the next (``W_{z'} z``) latent."""
+        first: nn.Linear = self.net[0]
+        z = self._select(z)
+        w_now, w_next = first.weight[:, : self.in_dim], first.weight[:, self.in_dim :]
+        return F.linear(z, w_now, first.bias), F.linear(z, w_next)
+
+    def from_projection(self, h_now: Tensor, h_next: Tensor) -> Tensor:
+        """Finishes the critic from ``project(z)[0] + project(z')[1]`` -> ``[*B, 1]``."""
+        return self.net[1:](h_now + h_next)
+
+    def forward(self, z: Tensor, z_next: Tensor) -> Tensor:
+        """``z, z' [*B, Z]`` -> ``r [*B, 1]``."""
+        return self.net(torch.cat([self._select(z), self._select(z_next)], dim=-1))
+
+    def score_pairs(self, x: Tensor) -> Tensor:
+        """Scores concatenated, already selected pairs ``[*B, 2 * in_dim]`` (for the gradient penalty)."""
+        return self.net(x)
+
+
+class TransitionReward(TensorDictModule):
+    r"""Inferred reward :math:`r_\theta(z_t, z_{t+1})` written under its own key ``"learned_reward"``.
+
+    Trained adversarially (expert transitions up, replayed ones down, WGAN-GP). It never
+    overwrites the environment's ``"reward"``.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> r = TransitionReward(8, [16])
+        >>> td = TensorDict({"z": torch.zeros(3, 8), ("next", "z"): torch.ones(3, 8)}, [3])
+        >>> r(td)["learned_reward"].shape
+        torch.Size([3, 1])
+    """
+
+    def __init__(self, latent_dim: int, hidden_dims: Sequence[int], latent_index=None, *, in_keys=None, out_keys=None):
+        super().__init__(
+            RewardNet(latent_dim, hidden_dims, latent_index),
+            in_keys=list(in_keys or ["z", ("next", "z")]),
+            out_keys=list(out_keys or ["learned_reward"]),
+        )

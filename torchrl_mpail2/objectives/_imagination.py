@@ -1,0 +1,92 @@
+r"""Imagined policy rollouts and their lambda-return :math:`G^\lambda_t(\hat{\boldsymbol\tau}^\pi_t)` (Eq. 6).
+
+Shared by the value target (slow target Q, no gradient) and the actor objective (online Q,
+frozen parameters, gradient through the actions).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import contextmanager
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor, nn
+
+from torchrl_mpail2.functional import lambda_return
+from torchrl_mpail2.modules.dynamics import DynamicsNet
+from torchrl_mpail2.modules.policy import PlanPolicyNet
+from torchrl_mpail2.modules.reward import RewardNet
+from torchrl_mpail2.modules.value import QEnsembleNet
+
+#: Heads drawn from the ensemble for a target or an objective (as in TD-MPC2, which the paper builds on).
+HEADS_PER_ESTIMATE = 2
+
+
+def draw_heads(num_q: int, device: torch.device) -> Tensor:
+    """Two distinct random head indices (CPU randperm: no device sync)."""
+    return torch.randperm(num_q)[:HEADS_PER_ESTIMATE].to(device)
+
+
+def ensemble_estimate(qnet: QEnsembleNet, reduce: str) -> Callable[[Tensor, Tensor], Tensor]:
+    """``(z, a) -> [*B]``: min (targets) or mean (objectives) over two random heads."""
+    if reduce not in ("min", "mean"):
+        raise ValueError(f"reduce must be 'min' or 'mean', got {reduce!r}")
+
+    def estimate(z: Tensor, a: Tensor) -> Tensor:
+        q = qnet(z, a, heads=draw_heads(qnet.num_q, z.device)).squeeze(-1)
+        return q.min(0).values if reduce == "min" else q.mean(0)
+
+    return estimate
+
+
+def rollout_latents(dynamics: DynamicsNet, z0: Tensor, plan: Tensor) -> Tensor:
+    """``z0 [M, Z]``, ``plan [M, H, A]`` -> ``[H+1, M, Z]`` (``z0`` first)."""
+    latents = [z0]
+    for k in range(plan.shape[-2]):
+        latents.append(dynamics(latents[-1], plan[..., k, :]))
+    return torch.stack(latents, 0)
+
+
+def chain_rewards(reward: RewardNet, latents: Tensor) -> Tensor:
+    """Rewards of consecutive latents ``[H+1, M, Z]`` -> ``[H, M]``, projecting each latent once."""
+    h_now, h_next = reward.project(latents)
+    return reward.from_projection(h_now[:-1], h_next[1:]).squeeze(-1)
+
+
+def imagined_lambda_return(
+    z0: Tensor, plan: Tensor, dynamics: DynamicsNet, reward: RewardNet, q_estimate: Callable[[Tensor, Tensor], Tensor],
+    policy: PlanPolicyNet, gamma: float, lmbda: float,
+) -> Tensor:
+    r"""Lambda-return of a plan rolled out through the latent model.
+
+    ``q`` at step ``t+H`` needs an action beyond the H-step plan; as in TD-MPC2 it is the first
+    step of a policy sample at :math:`\hat z_{t+H}`.
+
+    Args:
+        z0 (Tensor): start latents ``[M, Z]``.
+        plan (Tensor): actions ``[M, H, A]``.
+        q_estimate (Callable): ``(z [H+1, M, Z], a [H+1, M, A]) -> [H+1, M]``.
+
+    Returns:
+        Tensor: ``G`` of shape ``[M]``.
+    """
+    latents = rollout_latents(dynamics, z0, plan)
+    r = chain_rewards(reward, latents)
+    last_action = policy(latents[-1])[0][..., 0, :]
+    actions = torch.cat([plan.transpose(0, 1), last_action.unsqueeze(0)], 0)
+    q = q_estimate(latents, actions)
+    return lambda_return(r.transpose(0, 1), q.transpose(0, 1), gamma, lmbda)
+
+
+@contextmanager
+def frozen(*modules: nn.Module):
+    """Runs the modules with detached copies of their parameters, so no gradient reaches them
+    while gradients still flow through their inputs."""
+    contexts = [TensorDict.from_module(m).detach().to_module(m) for m in modules]
+    try:
+        for c in contexts:
+            c.__enter__()
+        yield
+    finally:
+        for c in reversed(contexts):
+            c.__exit__(None, None, None)

@@ -1,0 +1,81 @@
+r"""Lambda-return value loss :math:`\mathcal L_Q(\zeta)` (Eq. 4) with a Polyak target ensemble."""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+
+from torchrl_mpail2.modules.dynamics import LatentDynamics
+from torchrl_mpail2.modules.encoder import ObservationEncoder
+from torchrl_mpail2.modules.policy import MultiStepPolicy
+from torchrl_mpail2.modules.reward import TransitionReward
+from torchrl_mpail2.modules.value import QEnsemble
+from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives._imagination import ensemble_estimate, imagined_lambda_return
+
+
+class LambdaReturnValueLoss(MPAIL2LossBase):
+    r"""Every ensemble member regresses onto a model-based lambda-return target (Eq. 4).
+
+    .. math::
+        \mathcal L_Q = \sum_{e=1}^{E}\mathbb E_{(z,a,z')}\big[(Q^e_\zeta(z,a) - y)^2\big],\quad
+        y = r_\theta(z, z') + \gamma\,(1 - d)\,\bar G^\lambda(z'),
+
+    where :math:`\bar G^\lambda(z')` is the lambda-return (Eq. 6) of an imagined H-step policy plan
+    from :math:`z'` scored with the slow target :math:`\bar Q_\zeta` (min over two random heads), and
+    :math:`d` the termination flag when ``mask_terminal`` is set. Eq. 4 calls the target
+    entropy-regularised, but Eq. 6 has no entropy term; Eq. 6 is followed.
+
+    Args:
+        encoder_network, dynamics_network, reward_network, qvalue_network, policy_network: the MPAIL2 modules.
+
+    Keyword Args:
+        gamma (float): discount (0.99). lmbda (float): return parameter (0.95).
+        mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
+
+    Parameters: ``qvalue_network_params`` and ``target_qvalue_network_params`` (update the latter with
+    ``torchrl.objectives.SoftUpdate(loss, tau=0.01)``).
+
+    Returns: ``loss_value`` and detached ``q_mean``, ``q_target_mean``, ``learned_reward_mean``.
+    """
+
+    qvalue_network: QEnsemble
+    qvalue_network_params: TensorDictParams
+    target_qvalue_network_params: TensorDictParams
+    dynamics_network: LatentDynamics
+    reward_network: TransitionReward
+    policy_network: MultiStepPolicy
+
+    def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
+                 reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
+                 gamma: float = 0.99, lmbda: float = 0.95, mask_terminal: bool = False, reduction: str = "mean"):
+        super().__init__(encoder_network, reduction)
+        self.__dict__["dynamics_network"] = dynamics_network  # read only: kept out of this loss's parameters
+        self.__dict__["reward_network"] = reward_network
+        self.__dict__["policy_network"] = policy_network
+        self.convert_to_functional(qvalue_network, "qvalue_network", create_target_params=True)
+        self.gamma, self.lmbda, self.mask_terminal = gamma, lmbda, mask_terminal
+
+    @torch.no_grad()
+    def target(self, z, z_next, terminated=None):
+        """``y = r(z, z') + gamma (1 - d) G_bar(z')`` for flat ``[M, Z]`` latents -> ``([M], r [M])``."""
+        policy = self.policy_network.net
+        plan, _ = policy(z_next)
+        with self.target_qvalue_network_params.to_module(self.qvalue_network):
+            G = imagined_lambda_return(z_next, plan, self.dynamics_network.module, self.reward_network.module,
+                                       ensemble_estimate(self.qvalue_network.net, "min"), policy, self.gamma, self.lmbda)
+        r = self.reward_network.module(z, z_next).squeeze(-1)
+        if terminated is not None and self.mask_terminal:
+            G = G * (~terminated.reshape(G.shape)).to(G.dtype)
+        return r + self.gamma * G, r
+
+    def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
+        z, z_next = latents if latents is not None else self.replay_latents(tensordict)
+        z, z_next = z.reshape(-1, z.shape[-1]), z_next.reshape(-1, z_next.shape[-1])
+        action = tensordict.get(self.tensor_keys.action)
+        action = action.reshape(-1, action.shape[-1])
+        terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
+        y, r = self.target(z, z_next, terminated)
+        q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
+        loss = self.reduce((q - y).pow(2).sum(0))  # heads summed: each head regresses independently
+        return TensorDict({"loss_value": loss, "q_mean": q.detach().mean(), "q_target_mean": y.mean(),
+                           "learned_reward_mean": r.mean()}, [])
