@@ -59,12 +59,15 @@ class MPAIL2LossBase(LossModule):
     def _prefix(self, key: NestedKey) -> tuple[str, ...]:
         return (key,) if isinstance(key, str) else tuple(key)
 
+    def require(self, td: TensorDictBase, key: NestedKey) -> Tensor:
+        """``td[key]``, or a KeyError naming the loss, the key and the keys present."""
+        value = td.get(key, None)
+        if value is None:
+            raise KeyError(f"{type(self).__name__}: missing key {key!r} in the input; present: {list(td.keys(True, True))}")
+        return value
+
     def encode(self, td: TensorDictBase, prefix: tuple[str, ...] = ()) -> Tensor:
-        try:
-            return self.encoder_network.encode(td, prefix)
-        except KeyError as err:
-            raise KeyError(f"{type(self).__name__}: observation keys {self.encoder_network.in_keys} expected under "
-                           f"{prefix or 'the root'}; got keys {list(td.keys(True, True))}") from err
+        return self.encoder_network.net(*(self.require(td, (*prefix, k)) for k in self.encoder_network.in_keys))
 
     @torch.no_grad()
     def replay_latents(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:

@@ -57,7 +57,7 @@ class JEPDynamicsLoss(MPAIL2LossBase):
         z = self.encode(first)  # gradient flows into the encoder only through the first latent
         with torch.no_grad():
             targets = self.encode(tensordict, self._prefix(self.tensor_keys.next))  # sg(z_{t+1..t+T}), [*B, T, Z]
-        actions = tensordict.get(self.tensor_keys.action)
+        actions = self.require(tensordict, self.tensor_keys.action)
         steps = tensordict.shape[-1]
         dynamics = self.dynamics_network.module
         total = torch.zeros(z.shape[:-1], device=z.device, dtype=z.dtype)

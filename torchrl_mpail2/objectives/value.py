@@ -60,7 +60,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         """``y = r(z, z') + gamma (1 - d) G_bar(z')`` for flat ``[M, Z]`` latents -> ``([M], r [M])``."""
         policy = self.policy_network.net
         plan, _ = policy(z_next)
-        with self.target_qvalue_network_params.to_module(self.qvalue_network):
+        with self.target_qvalue_network_params.data.to_module(self.qvalue_network):
             G = imagined_lambda_return(z_next, plan, self.dynamics_network.module, self.reward_network.module,
                                        ensemble_estimate(self.qvalue_network.net, "min"), policy, self.gamma, self.lmbda)
         r = self.reward_network.module(z, z_next).squeeze(-1)
@@ -71,7 +71,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
     def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
         z, z_next = latents if latents is not None else self.replay_latents(tensordict)
         z, z_next = z.reshape(-1, z.shape[-1]), z_next.reshape(-1, z_next.shape[-1])
-        action = tensordict.get(self.tensor_keys.action)
+        action = self.require(tensordict, self.tensor_keys.action)
         action = action.reshape(-1, action.shape[-1])
         terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
         y, r = self.target(z, z_next, terminated)

@@ -1,0 +1,174 @@
+import pytest
+import torch
+from tensordict import TensorDict
+
+from conftest import replay_batch, tiny_modules
+from torchrl_mpail2 import (AdversarialRewardLoss, JEPDynamicsLoss, LambdaReturnValueLoss, LossConfig, MPAIL2Loss,
+                            MPAIL2Updater, MultiStepActorLoss)
+
+
+def _grads(module):
+    return [p.grad for p in module.parameters()]
+
+
+def _has_grad(module):
+    return any(g is not None and g.abs().sum() > 0 for g in _grads(module))
+
+
+def _no_grad(module):
+    return all(g is None or g.abs().sum() == 0 for g in _grads(module))
+
+
+def test_dynamics_loss_trains_encoder_and_dynamics_only():
+    m = tiny_modules()
+    loss = JEPDynamicsLoss(m.encoder, m.dynamics)
+    loss(replay_batch())["loss_dynamics"].backward()
+    assert _has_grad(m.encoder) and _has_grad(m.dynamics)
+    assert _no_grad(m.reward) and _no_grad(m.value) and _no_grad(m.policy)
+
+
+def test_dynamics_loss_by_hand_with_linear_dynamics():
+    m = tiny_modules()
+    loss = JEPDynamicsLoss(m.encoder, m.dynamics, rho=0.5)
+    td = replay_batch(batch=2, steps=3)
+    z0 = m.encoder.encode(td[:, 0])
+    targets = m.encoder.encode(td, ("next",))
+    z, expected = z0, 0.0
+    for k in range(3):
+        z = m.dynamics.module(z, td["action"][:, k])
+        expected = expected + 0.5 ** (k + 1) * (z - targets[:, k]).pow(2).sum(-1)
+    assert loss(td)["loss_dynamics"].item() == pytest.approx(expected.mean().item(), rel=1e-5)
+
+
+def test_reward_loss_leaves_encoder_untouched_and_uses_gp():
+    m = tiny_modules()
+    loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=0.1)
+    out = loss(replay_batch())
+    out["loss_reward"].backward()
+    assert _has_grad(m.reward) and _no_grad(m.encoder) and _no_grad(m.dynamics)
+    expected = out["reward_agent"] - out["reward_expert"] + 0.1 * out["grad_penalty"]
+    assert out["loss_reward"].item() == pytest.approx(expected.item(), rel=1e-5, abs=1e-6)
+    assert not out["grad_penalty"].requires_grad and not out["reward_gap"].requires_grad
+
+
+def test_value_loss_gradients_reach_only_q_and_never_the_target():
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)
+    loss(replay_batch())["loss_value"].backward()
+    assert _has_grad(m.value)
+    for other in (m.encoder, m.dynamics, m.reward, m.policy):
+        assert _no_grad(other)
+    assert all(not p.requires_grad for p in loss.target_qvalue_network_params.values(True, True))
+
+
+def test_value_target_reads_the_slow_target_and_soft_update_moves_it():
+    from torchrl.objectives import SoftUpdate
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)
+    updater = SoftUpdate(loss, tau=0.5)
+    z, z2 = torch.randn(6, 16), torch.randn(6, 16)
+    torch.manual_seed(3)
+    y_before, _ = loss.target(z, z2)
+    with torch.no_grad():
+        for p in m.value.parameters():
+            p.add_(1.0)  # online Q changes, target does not
+    torch.manual_seed(3)
+    y_same, _ = loss.target(z, z2)
+    assert torch.allclose(y_before, y_same)
+    updater.step()
+    torch.manual_seed(3)
+    y_after, _ = loss.target(z, z2)
+    assert not torch.allclose(y_before, y_after)
+    first = next(iter(loss.target_qvalue_network_params.values(True, True)))
+    online = next(iter(loss.qvalue_network_params.values(True, True)))
+    assert not torch.equal(first, online)
+
+
+def test_value_target_masks_terminal_transitions():
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, mask_terminal=True, gamma=0.9)
+    z, z2 = torch.randn(4, 16), torch.randn(4, 16)
+    term = torch.tensor([True, False, True, False]).unsqueeze(-1)
+    y, r = loss.target(z, z2, term)
+    assert torch.allclose(y[term.squeeze(-1)], r[term.squeeze(-1)])
+    assert not torch.allclose(y[~term.squeeze(-1)], r[~term.squeeze(-1)])
+
+
+def test_actor_loss_leaves_q_dynamics_reward_and_encoder_without_gradient():
+    m = tiny_modules()
+    loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)
+    out = loss(replay_batch())
+    out["loss_actor"].backward()
+    assert _has_grad(m.policy)
+    for other in (m.encoder, m.dynamics, m.reward, m.value):
+        assert _no_grad(other)
+    assert loss.log_alpha.grad is None  # alpha only learns through loss_alpha
+    out["loss_alpha"].backward()
+    assert loss.log_alpha.grad is not None and loss.target_entropy == -2.0
+
+
+def test_alpha_moves_toward_the_target_entropy():
+    m = tiny_modules()
+    loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, target_entropy_per_step=100.0)
+    loss(replay_batch())["loss_alpha"].backward()
+    # entropy far below a target of 100 nats: the gradient step must raise alpha
+    assert loss.log_alpha.grad < 0
+
+
+def test_set_keys_remaps_action_and_expert_prefix():
+    m = tiny_modules()
+    loss = MPAIL2Loss(m)
+    td = replay_batch()
+    td.rename_key_("action", "joint_cmd")
+    td.rename_key_("expert", "demo")
+    with pytest.raises(KeyError):
+        loss(td)
+    loss.set_keys(action="joint_cmd", expert="demo")
+    out = loss(td)
+    assert torch.isfinite(out["loss_value"]) and torch.isfinite(out["loss_reward"])
+    assert loss.value_loss.tensor_keys.action == "joint_cmd"
+
+
+def test_composite_returns_every_term_and_state_dict_round_trips():
+    m = tiny_modules()
+    loss = MPAIL2Loss(m, LossConfig(init_alpha=0.1))
+    out = loss(replay_batch())
+    for key in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor", "loss_alpha"):
+        assert out[key].shape == () and torch.isfinite(out[key])
+    for key in ("grad_penalty", "reward_gap", "q_mean", "alpha", "entropy"):
+        assert not out[key].requires_grad
+    assert loss.log_alpha.exp().item() == pytest.approx(0.1)
+    other = MPAIL2Loss(tiny_modules(), LossConfig())
+    other.load_state_dict(loss.state_dict())
+    assert other.log_alpha.item() == pytest.approx(loss.log_alpha.item())
+    for a, b in zip(loss.value_loss.target_qvalue_network_params.values(True, True),
+                    other.value_loss.target_qvalue_network_params.values(True, True)):
+        assert torch.equal(a, b)
+
+
+def test_param_groups_follow_table_4():
+    groups = MPAIL2Loss(tiny_modules()).param_groups()
+    assert [g["lr"] for g in groups["dynamics"]] == [3e-5, 3e-4]
+    assert groups["value"][0]["max_grad_norm"] == 5.0 and groups["actor"][0]["max_grad_norm"] == 1.0
+    ids = [id(p) for stage in groups.values() for g in stage for p in g["params"]]
+    assert len(ids) == len(set(ids))  # no parameter is stepped by two optimisers
+
+
+def test_updater_changes_each_component_and_skips_nonfinite_batches():
+    m = tiny_modules()
+    updater = MPAIL2Updater(MPAIL2Loss(m))
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    metrics = updater.update(replay_batch())
+    after = m.state_dict()
+    for prefix in ("encoder", "dynamics", "reward", "value", "policy"):
+        assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith(prefix)), prefix
+    assert metrics["nonfinite_skips"].item() == 0
+    bad = replay_batch()
+    bad["action"][0, 0, 0] = float("nan")
+    snapshot = {k: v.clone() for k, v in m.state_dict().items()}
+    updater.update(bad)
+    assert updater.skipped["dynamics"] == 1 and updater.skipped["value"] == 1
+    for k, v in m.state_dict().items():
+        if k.startswith(("dynamics", "encoder", "value")):
+            assert torch.equal(v, snapshot[k]), k
+        assert torch.isfinite(v.float()).all(), k

@@ -1,0 +1,165 @@
+r"""Latent MPPI planner seeded by the multi-step policy (Algorithm 2)."""
+from __future__ import annotations
+
+import contextlib
+
+import torch
+from tensordict import TensorDictBase
+from torch import Tensor
+from torchrl.modules.planners import MPCPlannerBase
+
+from torchrl_mpail2.config import PlannerConfig
+from torchrl_mpail2.functional import mppi_weights
+from torchrl_mpail2.modules.encoder import validate_observations
+from torchrl_mpail2.modules.factory import MPAIL2Modules
+from torchrl_mpail2.modules.policy import is_deterministic
+from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
+
+
+class LatentMPPIPlanner(MPCPlannerBase):
+    r"""MPPI in the learned latent space, warm-started by the previous plan and seeded by :math:`\pi_\phi`.
+
+    Each call encodes :math:`z_t = e_\omega(o_t)` once, shifts the previous plan mean one step (last step
+    0) for each environment (reset where ``"is_init"`` is set), draws ``M = policy_fraction * N`` plans from
+    :math:`\pi_\phi(\cdot|z_t)` and ``N - M`` from :math:`\mathcal N(\mu, \sigma)` (first iteration at
+    :math:`\sigma_{max}`), and scores each plan by
+
+    .. math:: \mathcal R = \sum_{k=0}^{H-1}\gamma^k r_\theta(\hat z_k, \hat z_{k+1}) + \gamma^H Q_\zeta(\hat z_H, a_H),
+
+    with :math:`a_H` the first step of the policy mean at :math:`\hat z_H` and Q the mean of two random heads.
+    The ``K`` best plans set the next mean and std (softmax weights at temperature :math:`\eta`,
+    max-subtracted; std clipped to :math:`[\sigma_{min}, \sigma_{max}]`), for ``J`` iterations.
+
+    Departures from Algorithm 2, each for speed or stability and stated here: the policy's ``M`` plans are
+    drawn and scored once per call and kept for every iteration (the policy's distribution does not change
+    between iterations); non-elite plans get zero weight (the pseudocode's "set to 0" would give them weight);
+    the warm start stores the final mean rather than the sample (as TD-MPC2 does).
+
+    In the ``RANDOM`` interaction type (training) the returned plan is a sample of the final Gaussian; in
+    ``DETERMINISTIC`` (``set_exploration_type(ExplorationType.DETERMINISTIC)``) it is the mean.
+
+    Writes ``action`` ``[*B, A]`` (projected on the action spec), ``"plan"`` ``[*B, H, A]`` and
+    ``"policy_influence"`` ``[*B, 1]``: the share of the final elite weight held by policy samples.
+
+    Args:
+        modules (MPAIL2Modules): the learned components.
+        action_spec (TensorSpec): the environment's action spec, bounded to ``[-1, 1]``.
+        cfg (PlannerConfig, optional): Table 4 defaults.
+
+    Keyword Args:
+        action_key (NestedKey): where the action is written. Defaults to ``"action"``.
+        generator (torch.Generator, optional): source of all sampling noise (for reproducible plans).
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import Bounded
+        >>> from torchrl_mpail2.config import ModelConfig, PlannerConfig
+        >>> from torchrl_mpail2.modules import MPAIL2Modules
+        >>> modules = MPAIL2Modules({"observation": [3]}, 2, ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16,
+        ...                         vector_coder_hidden=16, horizon=4))
+        >>> planner = LatentMPPIPlanner(modules, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=64, num_elites=8))
+        >>> td = planner(TensorDict({"observation": torch.zeros(3, 3)}, [3]))
+        >>> td["action"].shape, td["plan"].shape, td["policy_influence"].shape
+        (torch.Size([3, 2]), torch.Size([3, 4, 2]), torch.Size([3, 1]))
+    """
+
+    def __init__(self, modules: MPAIL2Modules, action_spec, cfg: PlannerConfig | None = None, *,
+                 action_key="action", generator: torch.Generator | None = None):
+        env = LatentWorldModelEnv(modules, action_spec)
+        super().__init__(env, action_key=action_key)
+        self.cfg = cfg or PlannerConfig()
+        if self.cfg.num_elites > self.cfg.num_candidates:
+            raise ValueError(f"num_elites ({self.cfg.num_elites}) > num_candidates ({self.cfg.num_candidates})")
+        self.__dict__["modules"] = modules  # the planner acts with the learner's networks; it does not own them
+        self.generator = generator
+        self.in_keys = list(modules.encoder.in_keys)
+        # MPCPlannerBase writes only the action through out_keys; "plan" and "policy_influence" are set directly.
+        self.extra_out_keys = ["plan", "policy_influence"]
+        self.horizon, self.action_dim = modules.cfg.horizon, modules.action_dim
+        self._prev_mean: Tensor | None = None
+        self.last_stats: dict[str, Tensor] = {}
+
+    # ---- warm-start state -------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forgets the previous plans (all environments start from a zero mean)."""
+        self._prev_mean = None
+
+    def get_extra_state(self):
+        return {"prev_mean": self._prev_mean}
+
+    def set_extra_state(self, state) -> None:
+        self._prev_mean = state.get("prev_mean")
+
+    def _initial_mean(self, td: TensorDictBase, num_envs: int, like: Tensor) -> Tensor:
+        mean = torch.zeros(num_envs, self.horizon, self.action_dim, dtype=like.dtype, device=like.device)
+        prev = self._prev_mean
+        if prev is None or prev.shape[0] != num_envs:
+            return mean
+        mean[:, :-1] = prev[:, 1:]
+        is_init = td.get("is_init", None)
+        if is_init is not None:
+            mean = mean.masked_fill(is_init.reshape(num_envs, 1, 1), 0.0)
+        return mean
+
+    # ---- scoring ----------------------------------------------------------------------------------
+    def _noise(self, shape, like: Tensor) -> Tensor:
+        return torch.randn(shape, dtype=like.dtype, device=like.device, generator=self.generator)
+
+    def score(self, z: Tensor, plans: Tensor, heads: Tensor) -> Tensor:
+        """Returns of ``plans [B, C, H, A]`` from latents ``z [B, Z]`` -> ``[B, C]``."""
+        m, cfg = self.modules, self.cfg
+        batch, num = plans.shape[:2]
+        dynamics, reward = m.dynamics.module, m.reward.module
+        h_now0, _ = reward.project(z)  # the start latent is shared by all candidates: project it once
+        h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
+        zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
+        actions = plans.reshape(batch * num, self.horizon, self.action_dim)
+        total = torch.zeros(batch * num, dtype=z.dtype, device=z.device)
+        for k in range(self.horizon):
+            zk = dynamics(zk, actions[:, k])
+            h_now_next, h_next = reward.project(zk)
+            total = total + cfg.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
+            h_now = h_now_next
+        last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
+        q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
+        return (total + cfg.gamma ** self.horizon * q).view(batch, num)
+
+    # ---- Algorithm 2 ------------------------------------------------------------------------------
+    @torch.no_grad()
+    def planning(self, td: TensorDictBase) -> Tensor:
+        cfg, m = self.cfg, self.modules
+        validate_observations(td, m.encoder.observation_shapes)
+        batch_shape = td.batch_size
+        flat = td.reshape(-1) if len(batch_shape) != 1 else td
+        num_envs = flat.shape[0]
+        autocast = torch.autocast(flat.device.type if flat.device else "cpu", dtype=torch.bfloat16) if cfg.bf16 else contextlib.nullcontext()
+        with autocast:
+            z = m.encoder.encode(flat)
+            num_pi = cfg.num_policy_samples
+            num_gauss = cfg.num_candidates - num_pi
+            heads = torch.randperm(m.value.net.num_q, generator=self.generator)[:HEADS_PER_ESTIMATE].to(z.device)
+            mean = self._initial_mean(flat, num_envs, z.float())
+            std = torch.full_like(mean, cfg.std_max)
+            if num_pi:
+                pi_plans = m.policy.net(z.unsqueeze(1).expand(num_envs, num_pi, z.shape[-1]), generator=self.generator)[0].float()
+                pi_returns = self.score(z, pi_plans, heads)
+            for _ in range(cfg.iterations):
+                noise = self._noise((num_envs, num_gauss, self.horizon, self.action_dim), mean)
+                plans = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
+                returns = self.score(z, plans, heads)
+                if num_pi:  # policy samples sit at indices >= N - M, as in Algorithm 2
+                    plans, returns = torch.cat([plans, pi_plans], 1), torch.cat([returns, pi_returns], 1)
+                weights, elite_index = mppi_weights(returns, cfg.num_elites, cfg.temperature)
+                elites = plans.gather(1, elite_index[..., None, None].expand(-1, -1, self.horizon, self.action_dim))
+                w = weights[..., None, None]
+                mean = (w * elites).sum(1)
+                std = (w * (elites - mean.unsqueeze(1)).pow(2)).sum(1).sqrt().clamp(cfg.std_min, cfg.std_max)
+        influence = (weights * (elite_index >= num_gauss)).sum(-1, keepdim=True)
+        self._prev_mean = mean
+        plan = mean if is_deterministic() else (mean + std * self._noise(mean.shape, mean)).clamp(-1.0, 1.0)
+        self.last_stats = {"policy_influence": influence.mean(), "elite_return": returns.gather(1, elite_index).mean(),
+                           "plan_std": std.mean()}
+        td.set("plan", plan.reshape(*batch_shape, self.horizon, self.action_dim))
+        td.set("policy_influence", influence.reshape(*batch_shape, 1))
+        return plan[:, 0].reshape(*batch_shape, self.action_dim)
