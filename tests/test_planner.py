@@ -1,0 +1,167 @@
+"""Planner correctness on a known latent model: z' = z + a, reward peaked at a goal."""
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from conftest import tiny_modules
+from torchrl_mpail2 import LatentMPPIPlanner, PlannerConfig
+from torchrl_mpail2.modules.reward import RewardNet
+
+GOAL = torch.tensor([0.5, -0.3])
+
+
+class Identity(nn.Module):
+    def forward(self, x):
+        return x
+
+
+class AddDynamics(nn.Module):
+    def forward(self, z, a):
+        return z + a
+
+
+class PeakReward(RewardNet):
+    """r(z, z') = -scale * ||z' - goal||^2, written in the planner's projected form."""
+
+    def __init__(self, scale=1.0):
+        super().__init__(2, [4])
+        self.scale = scale
+
+    def project(self, z):
+        return torch.zeros_like(z), z
+
+    def from_projection(self, h_now, h_next):
+        return -self.scale * (h_next - GOAL).pow(2).sum(-1, keepdim=True)
+
+
+class ZeroQ(nn.Module):
+    num_q = 5
+
+    def forward(self, z, a, heads=None):
+        return torch.zeros(2 if heads is not None else 5, *z.shape[:-1], 1)
+
+
+class FixedPolicy(nn.Module):
+    """Proposes the same plan every time and records how many plans it was asked for."""
+
+    def __init__(self, plan):
+        super().__init__()
+        self.plan, self.calls, self.horizon, self.action_dim = plan, [], plan.shape[0], plan.shape[1]
+
+    def forward(self, z, deterministic=False, generator=None):
+        self.calls.append(tuple(z.shape[:-1]))
+        return self.plan.expand(*z.shape[:-1], *self.plan.shape), torch.zeros(z.shape[:-1])
+
+
+def known_planner(policy_plan=None, reward_scale=1.0, **cfg):
+    m = tiny_modules(obs_dim=2, action_dim=2, latent_dim=2, horizon=3)
+    m.encoder.net.forward = lambda obs: obs  # the latent is the observation itself
+    m.dynamics.module = AddDynamics()
+    m.reward.module = PeakReward(reward_scale)
+    m.value.module.net = ZeroQ()
+    policy = FixedPolicy(torch.zeros(3, 2) if policy_plan is None else policy_plan)
+    m.policy.net = policy
+    defaults = dict(num_candidates=256, num_elites=32, iterations=6, temperature=0.5)
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(**{**defaults, **cfg}),
+                                generator=torch.Generator().manual_seed(0))
+    return planner, policy
+
+
+def obs(*rows):
+    return TensorDict({"observation": torch.tensor(rows, dtype=torch.float32)}, [len(rows)])
+
+
+def test_first_action_points_at_the_optimum():
+    planner, _ = known_planner()
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = planner(obs([0.0, 0.0], [0.5, -0.3], [0.2, 0.4]))
+    # one step reaches the goal; the best first action is goal - z for each environment
+    expected = GOAL - torch.tensor([[0.0, 0.0], [0.5, -0.3], [0.2, 0.4]])
+    assert torch.allclose(td["action"], expected, atol=0.08), td["action"]
+
+
+def test_stochastic_mode_samples_around_the_mean():
+    planner, _ = known_planner(std_min=0.3)
+    a = torch.stack([planner(obs([0.0, 0.0]))["action"] for _ in range(20)])
+    assert a.std(0).min() > 0.05  # sampled, not the mean
+    assert torch.allclose(a.mean(0), GOAL.unsqueeze(0), atol=0.3)
+
+
+def test_warm_start_shifts_the_previous_mean_and_resets_new_episodes():
+    planner, _ = known_planner()
+    prev = torch.arange(2 * 3 * 2, dtype=torch.float32).view(2, 3, 2) / 10
+    planner._prev_mean = prev.clone()
+    td = obs([0.0, 0.0], [0.0, 0.0])
+    mean = planner._initial_mean(td, 2, torch.zeros(1))
+    assert torch.equal(mean[:, :2], prev[:, 1:]) and torch.equal(mean[:, 2], torch.zeros(2, 2))
+    td["is_init"] = torch.tensor([[True], [False]])
+    mean = planner._initial_mean(td, 2, torch.zeros(1))
+    assert torch.equal(mean[0], torch.zeros(3, 2)) and torch.equal(mean[1, :2], prev[1, 1:])
+    # after a call the stored mean is the optimised plan; a different batch size starts fresh
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = planner(obs([0.0, 0.0], [0.0, 0.0]))
+    assert torch.equal(planner._prev_mean, out["plan"])
+    assert torch.equal(planner._initial_mean(obs([0.0, 0.0]), 1, torch.zeros(1)), torch.zeros(1, 3, 2))
+    state = planner.state_dict()
+    planner.reset()
+    assert planner._prev_mean is None
+    planner.load_state_dict(state)
+    assert torch.equal(planner._prev_mean, out["plan"])
+
+
+def test_warm_start_is_used_in_the_next_plan():
+    # with a single iteration and a tiny std, the plan must stay near the shifted previous mean
+    planner, _ = known_planner(iterations=1, std_max=0.05, policy_fraction=0.0)
+    planner._prev_mean = torch.full((1, 3, 2), 0.7)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        plan = planner(obs([0.0, 0.0]))["plan"]
+    assert torch.allclose(plan[0, :2], torch.full((2, 2), 0.7), atol=0.1)
+    assert torch.allclose(plan[0, 2], torch.zeros(2), atol=0.1)
+
+
+def test_policy_sample_fraction_is_respected():
+    planner, policy = known_planner(num_candidates=200, policy_fraction=0.05)
+    planner(obs([0.0, 0.0], [0.1, 0.1], [0.2, 0.2]))
+    sampling_calls = [c for c in policy.calls if len(c) == 2]
+    assert sampling_calls == [(3, 10)]  # M = 0.05 * 200 plans per environment, drawn once per call
+
+
+def test_policy_that_proposes_the_optimum_raises_policy_influence():
+    optimum = torch.stack([GOAL, torch.zeros(2), torch.zeros(2)])
+    good, _ = known_planner(policy_plan=optimum, iterations=1, reward_scale=50.0)
+    bad, _ = known_planner(policy_plan=-optimum, iterations=1, reward_scale=50.0)
+    influence_good = good(obs([0.0, 0.0]))["policy_influence"].item()
+    influence_bad = bad(obs([0.0, 0.0]))["policy_influence"].item()
+    assert influence_good > 0.5 and influence_bad < 0.05
+    assert 0.0 <= influence_bad <= influence_good <= 1.0 + 1e-6
+
+
+def test_returns_of_1e4_and_more_stay_finite():
+    planner, _ = known_planner(reward_scale=1e6)
+    td = planner(obs([0.0, 0.0], [-1.0, 1.0]))
+    assert torch.isfinite(td["action"]).all() and torch.isfinite(td["plan"]).all()
+    assert td["action"].abs().max() <= 1.0
+
+
+@pytest.mark.parametrize("batch", [(), (4,), (2, 3)])
+def test_any_batch_shape(batch):
+    m = tiny_modules()
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2))
+    td = planner(TensorDict({"observation": torch.randn(*batch, 3)}, batch))
+    assert td["action"].shape == (*batch, 2) and td["plan"].shape == (*batch, 3, 2)
+    assert td["policy_influence"].shape == (*batch, 1)
+
+
+def test_bad_observations_and_impossible_configs_are_rejected():
+    from torchrl_mpail2.config import ConfigError
+    m = tiny_modules()
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2))
+    with pytest.raises(ValueError, match="'observation': expected shape \\[\\*B, 3\\]"):
+        planner(TensorDict({"observation": torch.randn(2, 4)}, [2]))
+    with pytest.raises(ValueError, match="NaN"):
+        planner(TensorDict({"observation": torch.full((2, 3), float("inf"))}, [2]))
+    with pytest.raises(ConfigError, match="num_elites"):
+        PlannerConfig(num_candidates=32, num_elites=64)

@@ -1,0 +1,558 @@
+r"""Observation-only demonstrations: recording, the on-disk format, and its I/O.
+
+MPAIL2 imitates from observations alone, so a demonstration is a sequence of observations
+:math:`o_0, \dots, o_T` per episode. Actions and rewards are deliberately **not stored**: a learner
+that could read them would no longer be learning from observation.
+
+On-disk format (a directory)::
+
+    PATH/
+      header.json        # format name/version, env id, keys/shapes/dtypes, episode metadata,
+                         # byte size + sha256 of every stored file
+      observations/      # TensorDict.memmap of the flat observation TensorDict:
+        observation.memmap   #   one entry per observation key, [N, *shape]
+        episode.memmap       #   int64 [N], episode index of each observation
+        step.memmap          #   int64 [N], time step within the episode (0..T)
+        meta.json
+
+Episodes are stored one after the other, each with its final next-observation, so an episode of
+``T`` steps has ``T + 1`` observations and ``N = sum(T_i + 1)``.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDict
+from torchrl.data import Composite
+from torchrl.envs import EnvBase
+from tqdm.auto import tqdm
+
+__all__ = [
+    "DemoFormatError",
+    "check_observation_spec",
+    "Demonstrations",
+    "demos_from_arrays",
+    "load_demos",
+    "observation_keys_of",
+    "record_demos",
+    "save_demos",
+]
+
+FORMAT_NAME = "torchrl_mpail2.demos"
+FORMAT_VERSION = 1
+HEADER_FILE = "header.json"
+OBSERVATIONS_DIR = "observations"
+EPISODE_KEY = "episode"
+STEP_KEY = "step"
+INDEX_KEYS = (EPISODE_KEY, STEP_KEY)
+#: Keys of an env's observation spec that are not observations of the task.
+NON_OBSERVATION_KEYS = frozenset({"success", "step_count", "is_init", "episode_task_return"})
+NOT_STORED_NOTE = (
+    "Observation-only demonstrations: actions and rewards are not stored. "
+    "Per-episode task_return is kept for reporting only and must not be used for learning."
+)
+_HASH_CHUNK_BYTES = 1 << 20
+
+
+class DemoFormatError(Exception):
+    """A demo directory is not in the expected format, or is truncated or corrupted."""
+
+
+def _key_to_json(key) -> str | list[str]:
+    return key if isinstance(key, str) else list(key)
+
+
+def _key_from_json(key) -> str | tuple[str, ...]:
+    return key if isinstance(key, str) else tuple(key)
+
+
+def _dtype_name(dtype: torch.dtype) -> str:
+    return str(dtype).removeprefix("torch.")
+
+
+def _dtype_from_name(name: str) -> torch.dtype:
+    dtype = getattr(torch, str(name), None)
+    if not isinstance(dtype, torch.dtype):
+        raise DemoFormatError(f"header.json is corrupted: unknown dtype {name!r}.")
+    return dtype
+
+
+def observation_keys_of(observation_spec: Composite) -> list:
+    """Keys of an observation spec that are task observations (leaves, minus success and bookkeeping).
+
+    Examples:
+        >>> from torchrl_mpail2.envs import make_env
+        >>> observation_keys_of(make_env("point_mass").observation_spec)
+        ['observation']
+    """
+    return [key for key in observation_spec.keys(True, True) if key not in NON_OBSERVATION_KEYS]
+
+
+@dataclass
+class Demonstrations:
+    """Observation-only demonstrations held in memory.
+
+    Attributes:
+        observations (TensorDict): flat ``[N]`` TensorDict with one entry per observation key
+            (``[N, *shape]``) plus ``"episode"`` and ``"step"`` (int64 ``[N]``).
+        header (dict): format metadata: ``env_id``, ``observation_keys`` (key, shape, dtype),
+            ``num_episodes``, ``num_steps`` (transitions, ``sum T_i``), ``num_observations``
+            (``sum (T_i + 1)``), ``episodes`` (per episode: ``length``, ``success``, ``task_return``,
+            ``seed``, ``first_observation``). After :func:`load_demos` it also has ``files``.
+
+    Examples:
+        >>> import torch
+        >>> demos = demos_from_arrays([torch.zeros(4, 2), torch.ones(3, 2)], env_id="toy")
+        >>> demos.num_episodes, demos.num_steps, demos.episode(1)["observation"].shape
+        (2, 5, torch.Size([3, 2]))
+    """
+
+    observations: TensorDict
+    header: dict
+
+    @property
+    def env_id(self) -> str:
+        return self.header["env_id"]
+
+    @property
+    def observation_keys(self) -> list:
+        return [_key_from_json(entry["key"]) for entry in self.header["observation_keys"]]
+
+    @property
+    def num_episodes(self) -> int:
+        return int(self.header["num_episodes"])
+
+    @property
+    def num_steps(self) -> int:
+        """Number of transitions ``(o, o')`` over all episodes."""
+        return int(self.header["num_steps"])
+
+    @property
+    def episode_lengths(self) -> list[int]:
+        """Steps ``T_i`` per episode (each episode has ``T_i + 1`` observations)."""
+        return [int(meta["length"]) for meta in self.header["episodes"]]
+
+    def episode(self, index: int) -> TensorDict:
+        """The ``[T_i + 1]`` observations of episode ``index`` (negative indices count from the end)."""
+        meta = self.header["episodes"][index]
+        start = int(meta["first_observation"])
+        return self.observations[start : start + int(meta["length"]) + 1]
+
+    @property
+    def success_rate(self) -> float:
+        """Fraction of episodes successful at their last step; ``nan`` if success was not recorded."""
+        episodes = self.header["episodes"]
+        flags = [meta["success"] for meta in episodes if meta.get("success") is not None]
+        return sum(map(bool, flags)) / len(flags) if flags else math.nan
+
+    @property
+    def mean_return(self) -> float:
+        """Mean task return per episode (reporting only); ``nan`` if not recorded."""
+        episodes = self.header["episodes"]
+        returns = [meta["task_return"] for meta in episodes if meta.get("task_return") is not None]
+        return sum(returns) / len(returns) if returns else math.nan
+
+    def summary(self) -> str:
+        """A human-readable description of the header."""
+        header, lengths = self.header, self.episode_lengths
+        env_kwargs = f" {header['env_kwargs']}" if header.get("env_kwargs") else ""
+        lines = [
+            f"format: {header['format']} v{header['format_version']}",
+            f"env: {self.env_id}{env_kwargs}",
+            f"episodes: {self.num_episodes}  steps: {self.num_steps}  observations: {header['num_observations']}",
+            f"episode length: min {min(lengths)}  max {max(lengths)}  mean {sum(lengths) / len(lengths):.1f}",
+            f"success rate: {self.success_rate:.3f}  mean task return: {self.mean_return:.3f}",
+            "observation keys:",
+            *(f"  {entry['key']}: shape {entry['shape']} {entry['dtype']}" for entry in header["observation_keys"]),
+            header["note"],
+        ]
+        return "\n".join(lines)
+
+
+def _assemble(
+    episodes: Sequence[Mapping[Any, torch.Tensor]],
+    metadata: Sequence[dict],
+    env_id: str,
+    env_kwargs: dict | None = None,
+) -> Demonstrations:
+    """Flattens per-episode ``{key: [T + 1, ...]}`` tensors into a :class:`Demonstrations`."""
+    if not episodes:
+        raise ValueError("At least one episode is needed.")
+    keys = list(episodes[0].keys())
+    for key in keys:
+        if key in INDEX_KEYS:
+            raise ValueError(f"Observation key {key!r} is reserved for the episode/step index.")
+    reference = {key: (tuple(episodes[0][key].shape[1:]), episodes[0][key].dtype) for key in keys}
+    lengths = []
+    for i, episode in enumerate(episodes):
+        if set(episode.keys()) != set(keys):
+            raise ValueError(
+                f"Episode {i} has keys {sorted(map(str, episode.keys()))}, episode 0 has {sorted(map(str, keys))}."
+            )
+        num_observations = {int(episode[key].shape[0]) for key in keys}
+        if len(num_observations) != 1:
+            raise ValueError(f"Episode {i}: keys disagree on the number of observations {sorted(num_observations)}.")
+        (count,) = num_observations
+        if count < 2:
+            raise ValueError(f"Episode {i} has {count} observation(s); at least 2 ([T + 1], T >= 1) are needed.")
+        for key in keys:
+            shape, dtype = tuple(episode[key].shape[1:]), episode[key].dtype
+            if (shape, dtype) != reference[key]:
+                raise ValueError(
+                    f"Episode {i}, key {key!r}: shape {shape} {dtype}, episode 0 has {reference[key]}."
+                )
+        lengths.append(count - 1)
+
+    counts = torch.tensor(lengths) + 1
+    columns = {key: torch.cat([episode[key].detach().cpu() for episode in episodes]) for key in keys}
+    columns[EPISODE_KEY] = torch.repeat_interleave(torch.arange(len(episodes)), counts)
+    columns[STEP_KEY] = torch.cat([torch.arange(int(count)) for count in counts])
+    observations = TensorDict(columns, batch_size=[int(counts.sum())])
+
+    first = torch.cumsum(counts, 0) - counts
+    episode_meta = [
+        {
+            "length": length,
+            "success": meta.get("success"),
+            "task_return": meta.get("task_return"),
+            "seed": meta.get("seed"),
+            "first_observation": int(start),
+        }
+        for length, meta, start in zip(lengths, metadata, first.tolist())
+    ]
+    header = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "note": NOT_STORED_NOTE,
+        "env_id": env_id,
+        "env_kwargs": dict(env_kwargs or {}),
+        "observation_keys": [
+            {"key": _key_to_json(key), "shape": list(shape), "dtype": _dtype_name(dtype)}
+            for key, (shape, dtype) in reference.items()
+        ],
+        "num_episodes": len(episodes),
+        "num_steps": int(sum(lengths)),
+        "num_observations": int(counts.sum()),
+        "episodes": episode_meta,
+    }
+    return Demonstrations(observations=observations, header=header)
+
+
+def demos_from_arrays(
+    episodes: Sequence[Mapping[str, Any]] | Sequence[Any],
+    env_id: str = "custom",
+    key: str = "observation",
+    *,
+    success: Sequence[bool] | None = None,
+    task_returns: Sequence[float] | None = None,
+) -> Demonstrations:
+    """Builds demonstrations from your own recordings.
+
+    Each episode of ``T`` steps is given as its ``T + 1`` observations, the last one being the
+    observation after the final step: either a dict ``{key: [T + 1, *shape]}`` (several keys; all
+    episodes need the same keys, shapes and dtypes) or a single array ``[T + 1, *shape]`` stored under
+    ``key``. Arrays may be numpy arrays, torch tensors or nested lists; ``shape`` must have at least
+    one dimension (a vector). float64 is cast to float32, the dtype of every env of the project.
+
+    Args:
+        episodes: the episodes, as described above.
+        env_id (str): name of the env the observations come from (checked by nobody, but shown
+            by ``info`` and useful to match demos with envs). Defaults to ``"custom"``.
+        key (str): key for plain arrays. Defaults to ``"observation"``.
+
+    Keyword Args:
+        success (sequence of bool, optional): per-episode success flags, if known.
+        task_returns (sequence of float, optional): per-episode task returns, if known (reporting only).
+
+    Examples:
+        >>> import numpy as np
+        >>> demos = demos_from_arrays([np.zeros((51, 4)), np.zeros((31, 4))], env_id="point_mass")
+        >>> demos.episode_lengths, demos.observations["observation"].dtype
+        ([50, 30], torch.float32)
+        >>> demos_from_arrays([{"joint_pos": np.zeros((11, 7)), "cube_pos": np.zeros((11, 3))}]).observation_keys
+        ['joint_pos', 'cube_pos']
+    """
+    tensors = []
+    for i, episode in enumerate(episodes):
+        items = episode.items() if isinstance(episode, Mapping) else [(key, episode)]
+        converted = {}
+        for name, array in items:
+            tensor = torch.as_tensor(array)
+            if tensor.dtype == torch.float64:
+                tensor = tensor.float()
+            if tensor.ndim < 2:
+                raise ValueError(
+                    f"Episode {i}, key {name!r}: expected [T + 1, *shape] with a non-empty shape, "
+                    f"got shape {tuple(tensor.shape)}."
+                )
+            converted[name] = tensor
+        tensors.append(converted)
+    for name, values in (("success", success), ("task_returns", task_returns)):
+        if values is not None and len(values) != len(tensors):
+            raise ValueError(f"{name} has {len(values)} entries for {len(tensors)} episodes.")
+    metadata = [
+        {
+            "success": None if success is None else bool(success[i]),
+            "task_return": None if task_returns is None else float(task_returns[i]),
+        }
+        for i in range(len(tensors))
+    ]
+    return _assemble(tensors, metadata, env_id=env_id)
+
+
+def record_demos(
+    env: EnvBase,
+    expert,
+    episodes: int,
+    out: str | Path | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    *,
+    env_id: str | None = None,
+    env_kwargs: dict | None = None,
+    max_steps: int = 10_000,
+    overwrite: bool = False,
+) -> Demonstrations:
+    """Rolls an expert out and keeps only the observations.
+
+    Episode ``i`` is reset with seed ``seed + i`` (env seed and, inside a forked RNG scope, the
+    global torch seed, so stochastic experts are reproducible too): the same ``seed`` gives
+    identical data. Kept keys: everything in ``env.observation_spec`` except ``"success"`` and the
+    bookkeeping keys. Actions and rewards are dropped; per-episode metadata keeps the success at
+    the last step, the task return (reporting only), the length and the seed.
+
+    Args:
+        env (EnvBase): an env with an empty batch size (one episode at a time).
+        expert: callable ``tensordict -> tensordict`` writing ``"action"``; its ``reset()``, if it
+            has one, is called before each episode.
+        episodes (int): number of episodes.
+        out (str or Path, optional): if given, the demos are also saved there (:func:`save_demos`).
+        seed (int): seed of the first episode. Defaults to 0.
+        progress (bool): show a tqdm progress bar. Defaults to ``True``.
+
+    Keyword Args:
+        env_id (str, optional): name stored in the header; defaults to the base env's class name.
+        env_kwargs (dict, optional): how the env was built (e.g. ``{"obs": "state"}``), stored in the header.
+        max_steps (int): safety cap on episode length if the env never ends an episode.
+        overwrite (bool): replace an existing ``out`` directory.
+
+    Examples:
+        >>> from torchrl_mpail2.envs import make_env
+        >>> from torchrl_mpail2.experts import PointMassExpert
+        >>> demos = record_demos(make_env("point_mass"), PointMassExpert(), episodes=2, progress=False)
+        >>> demos.episode_lengths, demos.success_rate, "action" in demos.observations.keys()
+        ([50, 50], 1.0, False)
+    """
+    if env.batch_size != torch.Size([]):
+        raise ValueError(f"record_demos needs an env with an empty batch size, got {tuple(env.batch_size)}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}.")
+    keys = observation_keys_of(env.observation_spec)
+    if env_id is None:
+        env_id = type(getattr(env, "base_env", env)).__name__
+    has_success = "success" in env.observation_spec.keys()
+    reward_key = "task_reward" if "task_reward" in env.reward_keys else env.reward_key
+
+    recorded, metadata = [], []
+    bar = tqdm(range(episodes), desc=f"recording {env_id}", disable=not progress)
+    for i in bar:
+        episode_seed = seed + i
+        with torch.random.fork_rng(devices=[]), torch.no_grad():
+            torch.manual_seed(episode_seed)
+            env.set_seed(episode_seed)
+            if callable(getattr(expert, "reset", None)):
+                expert.reset()
+            rollout = env.rollout(max_steps, policy=expert, break_when_any_done=True)
+        recorded.append({key: torch.cat([rollout[key], rollout["next", key][-1:]]) for key in keys})
+        metadata.append(
+            {
+                "success": bool(rollout["next", "success"][-1].item()) if has_success else None,
+                "task_return": float(rollout["next", reward_key].sum().item()),
+                "seed": episode_seed,
+            }
+        )
+        successes = [meta["success"] for meta in metadata if meta["success"] is not None]
+        if successes:
+            bar.set_postfix(success=f"{sum(successes) / len(successes):.2f}")
+    demos = _assemble(recorded, metadata, env_id=env_id, env_kwargs=env_kwargs)
+    if out is not None:
+        save_demos(demos, out, overwrite=overwrite)
+    return demos
+
+
+def _file_digest(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(_HASH_CHUNK_BYTES), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False) -> Path:
+    """Writes demonstrations to a directory (format in the module docstring).
+
+    Written to a temporary sibling first and moved into place, so an interrupted save never
+    leaves a half-written demo directory under ``path``.
+
+    Args:
+        demos (Demonstrations): what to write.
+        path (str or Path): target directory; must not exist unless ``overwrite``.
+        overwrite (bool): replace an existing directory. Defaults to ``False``.
+
+    Returns:
+        Path: ``path``.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    try:
+        staging.mkdir()
+        arrays_dir = staging / OBSERVATIONS_DIR
+        demos.observations.memmap(arrays_dir)
+        files = {
+            file.relative_to(staging).as_posix(): {"nbytes": file.stat().st_size, "sha256": _file_digest(file)}
+            for file in sorted(arrays_dir.rglob("*"))
+            if file.is_file()
+        }
+        header = {key: value for key, value in demos.header.items() if key != "files"}
+        header["files"] = files
+        (staging / HEADER_FILE).write_text(json.dumps(header, indent=1))
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(staging, path)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return path
+
+
+def _read_header(path: Path) -> dict:
+    header_path = path / HEADER_FILE
+    if not header_path.is_file():
+        raise DemoFormatError(f"{path} is not a demo directory: {HEADER_FILE} is missing.")
+    try:
+        header = json.loads(header_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise DemoFormatError(f"{header_path} is truncated or corrupted: {error}") from error
+    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+        raise DemoFormatError(f"{header_path} is corrupted or not a {FORMAT_NAME} header.")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise DemoFormatError(
+            f"{header_path} has format_version {header.get('format_version')!r}; this code reads {FORMAT_VERSION}."
+        )
+    required = ("env_id", "observation_keys", "num_episodes", "num_steps", "num_observations", "episodes", "files")
+    missing = [name for name in required if name not in header]
+    if missing:
+        raise DemoFormatError(f"{header_path} is truncated or corrupted: missing fields {missing}.")
+    return header
+
+
+def _check_files(path: Path, header: dict, verify: bool) -> None:
+    for relative, expected in header["files"].items():
+        file = path / relative
+        if not file.is_file():
+            raise DemoFormatError(f"{file} is missing: the demo directory is truncated or corrupted.")
+        size = file.stat().st_size
+        if size != expected["nbytes"]:
+            raise DemoFormatError(
+                f"{file} is truncated or corrupted: {size} bytes on disk, {expected['nbytes']} in the header."
+            )
+        if verify and _file_digest(file) != expected["sha256"]:
+            raise DemoFormatError(f"{file} is corrupted: its sha256 does not match the header.")
+
+
+def _check_contents(observations: TensorDict, header: dict) -> None:
+    """Cross-checks the loaded arrays against the header (catches edited or mismatched headers)."""
+    expected = {_key_from_json(entry["key"]): entry for entry in header["observation_keys"]}
+    stored = set(observations.keys(True, True)) - set(INDEX_KEYS)
+    if stored != set(expected) or not all(key in observations.keys() for key in INDEX_KEYS):
+        raise DemoFormatError(f"Stored keys {sorted(map(str, stored))} disagree with the header; data is corrupted.")
+    count = header["num_observations"]
+    if observations.batch_size != torch.Size([count]):
+        raise DemoFormatError(f"{observations.batch_size[0]} observations stored, {count} in the header; data is corrupted.")
+    for key, entry in expected.items():
+        tensor = observations.get(key)
+        if list(tensor.shape[1:]) != list(entry["shape"]) or tensor.dtype != _dtype_from_name(entry["dtype"]):
+            raise DemoFormatError(f"Key {key!r} stored as {tuple(tensor.shape[1:])} {tensor.dtype}, header says {entry}.")
+    lengths = [int(meta["length"]) for meta in header["episodes"]]
+    counts = torch.tensor(lengths, dtype=torch.long) + 1
+    if len(lengths) != header["num_episodes"] or sum(lengths) != header["num_steps"] or int(counts.sum()) != count:
+        raise DemoFormatError("Episode metadata disagrees with the episode/step counts; header is corrupted.")
+    episode_index = torch.repeat_interleave(torch.arange(len(lengths)), counts)
+    step_index = torch.cat([torch.arange(int(c)) for c in counts])
+    if not (torch.equal(observations[EPISODE_KEY], episode_index) and torch.equal(observations[STEP_KEY], step_index)):
+        raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
+
+
+def check_observation_spec(demos: Demonstrations, observation_spec: Composite) -> None:
+    """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
+
+    ``"success"`` and bookkeeping keys of the spec are ignored; batch dimensions of the spec are
+    stripped before shapes are compared.
+    """
+    spec_keys = observation_keys_of(observation_spec)
+    demo_keys = demos.observation_keys
+    missing = [key for key in spec_keys if key not in demo_keys]
+    extra = [key for key in demo_keys if key not in spec_keys]
+    if missing or extra:
+        raise ValueError(
+            f"Demonstrations ({demos.env_id}) do not match the observation spec: "
+            f"keys missing from the demos {missing}, extra keys in the demos {extra}."
+        )
+    batch_dims = len(observation_spec.shape)
+    for key in spec_keys:
+        expected = tuple(observation_spec[key].shape[batch_dims:])
+        stored = tuple(demos.observations.get(key).shape[1:])
+        if expected != stored:
+            raise ValueError(
+                f"Observation key {key!r} has shape {stored} in the demonstrations but {expected} in the observation spec."
+            )
+        if observation_spec[key].dtype != demos.observations.get(key).dtype:
+            raise ValueError(
+                f"Observation key {key!r} has dtype {demos.observations.get(key).dtype} in the demonstrations "
+                f"but {observation_spec[key].dtype} in the observation spec."
+            )
+
+
+def load_demos(path: str | Path, observation_spec: Composite | None = None, verify: bool = True) -> Demonstrations:
+    """Loads and validates demonstrations written by :func:`save_demos`.
+
+    Every stored file is checked against the byte size and sha256 recorded in the header before
+    anything is read, so truncated or corrupted data raises instead of loading silently (a
+    truncated memmap would otherwise read as zeros). The data is copied into memory.
+
+    Args:
+        path (str or Path): demo directory.
+        observation_spec (Composite, optional): an env's observation spec to check keys and shapes against.
+        verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
+
+    Raises:
+        DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files.
+        ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes).
+    """
+    path = Path(path)
+    header = _read_header(path)
+    try:
+        _check_files(path, header, verify)
+        observations = TensorDict.load_memmap(path / OBSERVATIONS_DIR).to_tensordict()
+        _check_contents(observations, header)
+    except DemoFormatError:
+        raise
+    except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:
+        raise DemoFormatError(f"{path} is truncated or corrupted: {type(error).__name__}: {error}") from error
+    demos = Demonstrations(observations=observations, header=header)
+    if observation_spec is not None:
+        check_observation_spec(demos, observation_spec)
+    return demos

@@ -1,0 +1,70 @@
+"""Command line for observation-only demonstrations.
+
+Usage::
+
+    python -m torchrl_mpail2.demos record --env point_mass --obs state --episodes 20 --seed 0 --out demos/point_mass
+    python -m torchrl_mpail2.demos info demos/point_mass
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from torchrl_mpail2.data.demos import load_demos, record_demos
+from torchrl_mpail2.envs.factory import ENV_NAMES, make_env
+
+
+def _record(args: argparse.Namespace) -> None:
+    from torchrl_mpail2.experts import get_expert
+
+    env = make_env(args.env, obs=args.obs, seed=args.seed)
+    expert = get_expert(args.env, env)
+    demos = record_demos(
+        env,
+        expert,
+        episodes=args.episodes,
+        out=args.out,
+        seed=args.seed,
+        progress=not args.no_progress,
+        env_id=args.env,
+        env_kwargs={"obs": args.obs},
+        overwrite=args.overwrite,
+    )
+    print(f"wrote {args.out}")
+    print(demos.summary())
+
+
+def _info(args: argparse.Namespace) -> None:
+    print(load_demos(args.path, verify=not args.no_verify).summary())
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m torchrl_mpail2.demos", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    record = commands.add_parser("record", help="roll the env's expert out and save its observations")
+    record.add_argument("--env", required=True, choices=ENV_NAMES)
+    record.add_argument("--obs", default="state", help="observation mode (non-state modes: robosuite only)")
+    record.add_argument("--episodes", type=int, default=20)
+    record.add_argument("--seed", type=int, default=0, help="episode i is seeded with seed + i")
+    record.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")
+    record.add_argument("--overwrite", action="store_true")
+    record.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    record.set_defaults(run=_record)
+
+    info = commands.add_parser("info", help="validate a demo directory and print its header summary")
+    info.add_argument("path")
+    info.add_argument("--no-verify", action="store_true", help="skip sha256 checks (sizes are still checked)")
+    info.set_defaults(run=_info)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    args.run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+"""One entry point, :func:`make_env`, for every environment of the project.
+
+All envs share the conventions the learner relies on: float32 vector observations under flat keys,
+``Bounded(-1, 1)`` float32 actions, a boolean ``"success"`` ``[1]`` key, the task reward under
+``"task_reward"`` (never ``"reward"``, so that the learner cannot see it by accident),
+``"done"``/``"terminated"``/``"truncated"``, and the bookkeeping transforms ``StepCounter``,
+``InitTracker`` (``"is_init"``) and ``RewardSum`` (``"task_reward"`` -> ``"episode_task_return"``).
+"""
+from __future__ import annotations
+
+from functools import partial
+
+import torch
+from torchrl.envs import EnvBase, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+
+from torchrl_mpail2.envs.point_mass import PointMassEnv
+
+__all__ = ["ENV_NAMES", "make_env", "with_bookkeeping"]
+
+POINT_MASS = "point_mass"
+ROBOSUITE_TASKS = ("Lift", "Push", "PushMirrored")
+GYM_TASKS = ("Hopper-v5", "Ant-v5", "Humanoid-v5")
+#: Every name :func:`make_env` accepts.
+ENV_NAMES = (
+    POINT_MASS,
+    *(f"robosuite/{task}" for task in ROBOSUITE_TASKS),
+    *(f"gym/{task}" for task in GYM_TASKS),
+)
+#: Keys written by the bookkeeping transforms; they are not observations of the task.
+BOOKKEEPING_KEYS = ("step_count", "is_init", "episode_task_return")
+
+
+def with_bookkeeping(env: EnvBase) -> TransformedEnv:
+    """Appends ``StepCounter``, ``InitTracker`` and ``RewardSum`` where they are missing.
+
+    Idempotent: a transform is skipped when its output key is already in the observation spec,
+    so envs built by other factories that already carry them are not double-wrapped.
+    ``StepCounter`` gets no ``max_steps``: truncation is the base env's job.
+
+    Examples:
+        >>> env = with_bookkeeping(PointMassEnv(seed=0))
+        >>> sorted(k for k in env.observation_spec.keys() if k != "observation")
+        ['episode_task_return', 'is_init', 'step_count', 'success']
+        >>> with_bookkeeping(env) is env
+        True
+    """
+    present = set(env.observation_spec.keys())
+    transforms = []
+    if "step_count" not in present:
+        transforms.append(StepCounter())
+    if "is_init" not in present:
+        transforms.append(InitTracker(init_key="is_init"))
+    if "episode_task_return" not in present:
+        transforms.append(RewardSum(in_keys=["task_reward"], out_keys=["episode_task_return"]))
+    if not transforms:
+        return env if isinstance(env, TransformedEnv) else TransformedEnv(env)
+    if not isinstance(env, TransformedEnv):
+        env = TransformedEnv(env)
+    for transform in transforms:
+        env.append_transform(transform)
+    return env
+
+
+def make_env(
+    name: str,
+    obs: str = "state",
+    seed: int = 0,
+    num_envs: int | None = None,
+    device: torch.device | str = "cpu",
+    **kwargs,
+) -> TransformedEnv:
+    """Builds a project environment by name, with the bookkeeping transforms.
+
+    Args:
+        name (str): one of :data:`ENV_NAMES`: ``"point_mass"``, ``"robosuite/Lift"``,
+            ``"robosuite/Push"``, ``"robosuite/PushMirrored"``, ``"gym/Hopper-v5"``,
+            ``"gym/Ant-v5"``, ``"gym/Humanoid-v5"``.
+        obs (str): observation mode. Only robosuite tasks accept anything other than
+            ``"state"`` (what they accept is up to :func:`make_robosuite_env`). Defaults to ``"state"``.
+        seed (int): seed of the env (of the first sub-env when ``num_envs`` is given).
+        num_envs (int, optional): if given, a batch of ``num_envs`` envs with ``batch_size=[num_envs]``
+            (one batched :class:`PointMassEnv`; a :class:`~torchrl.envs.SerialEnv` otherwise, since
+            the project runs on few cores). If ``None``, a single env with an empty batch size.
+        device (torch.device or str): device of the env's tensors.
+        **kwargs: forwarded to the underlying constructor (e.g. ``horizon`` for point_mass and robosuite).
+
+    Returns:
+        TransformedEnv: the environment.
+
+    Raises:
+        ValueError: for an unknown name (the message lists the valid ones) or for ``obs != "state"``
+            on a non-robosuite env.
+
+    Examples:
+        >>> env = make_env("point_mass", seed=0, num_envs=2)
+        >>> env.batch_size, env.reward_keys
+        (torch.Size([2]), ['task_reward'])
+        >>> make_env("cartpole")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: Unknown env 'cartpole'. Valid names: point_mass, robosuite/Lift, ..., gym/Humanoid-v5.
+    """
+    if name not in ENV_NAMES:
+        raise ValueError(f"Unknown env {name!r}. Valid names: {', '.join(ENV_NAMES)}.")
+    family, _, task = name.partition("/")
+    if obs != "state" and family != "robosuite":
+        raise ValueError(f"obs={obs!r} is only supported for robosuite tasks; {name!r} only has obs='state'.")
+    if num_envs is not None and num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer or None, got {num_envs}.")
+
+    if family == POINT_MASS:
+        batch_size = () if num_envs is None else (num_envs,)
+        return with_bookkeeping(PointMassEnv(batch_size=batch_size, device=device, seed=seed, **kwargs))
+
+    if family == "robosuite":
+        # Imported lazily: robosuite is an optional dependency and slow to import.
+        from torchrl_mpail2.envs.robosuite_env import make_robosuite_env
+
+        make_one = partial(make_robosuite_env, task, obs=obs, device=device, **kwargs)
+    else:
+        from torchrl_mpail2.envs.gym_env import make_gym_env
+
+        make_one = partial(make_gym_env, task, device=device, **kwargs)
+
+    if num_envs is None:
+        return with_bookkeeping(make_one(seed=seed))
+    # Sub-envs are seeded by SerialEnv.set_seed (seed, then derived seeds), so they differ.
+    batched = SerialEnv(num_envs, partial(make_one, seed=seed), device=device)
+    batched.set_seed(seed)
+    return with_bookkeeping(batched)

@@ -1,0 +1,41 @@
+"""Experts that generate demonstrations, one per env name, found through :func:`get_expert`."""
+from __future__ import annotations
+
+from torchrl.envs import EnvBase
+
+from torchrl_mpail2.experts.point_mass import PointMassExpert
+
+__all__ = ["PointMassExpert", "get_expert"]
+
+
+def get_expert(env_name: str, env: EnvBase):
+    """Returns the expert policy for an env built by :func:`~torchrl_mpail2.envs.make_env`.
+
+    The expert is a callable that reads a tensordict and writes ``"action"``. If it has a
+    ``reset()`` method, the demo recorder calls it before each episode.
+
+    Args:
+        env_name (str): the name given to ``make_env`` (``"point_mass"``, ``"robosuite/Lift"``, ...).
+        env (EnvBase): the env the expert will act in (scripted robosuite experts read its specs).
+
+    Raises:
+        NotImplementedError: for gym tasks (their SAC experts are not trained yet).
+        ValueError: for an unknown env name.
+
+    Examples:
+        >>> from torchrl_mpail2.envs import make_env
+        >>> expert = get_expert("point_mass", make_env("point_mass"))
+        >>> type(expert).__name__
+        'PointMassExpert'
+    """
+    if env_name == "point_mass":
+        return PointMassExpert()
+    if env_name in ("robosuite/Lift", "robosuite/Push", "robosuite/PushMirrored"):
+        # Lazy: scripted experts pull in robosuite.
+        from torchrl_mpail2.experts import scripted
+
+        expert_cls = scripted.LiftExpert if env_name == "robosuite/Lift" else scripted.PushExpert
+        return expert_cls(env)
+    if env_name.startswith("gym/"):
+        raise NotImplementedError("SAC experts not trained yet")
+    raise ValueError(f"No expert for env {env_name!r}.")
