@@ -50,7 +50,7 @@ class MPAIL2Loss(MPAIL2LossBase):
         cfg = cfg or LossConfig()
         super().__init__(modules.encoder)
         self.cfg = cfg
-        self.__dict__["modules"] = modules
+        self.__dict__["components"] = modules
         m = modules
         self.dynamics_loss = JEPDynamicsLoss(m.encoder, m.dynamics, rho=cfg.rho)
         self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef)
@@ -76,7 +76,7 @@ class MPAIL2Loss(MPAIL2LossBase):
         the clip applied before that optimiser's step. Stages: ``dynamics`` (encoder at ``encoder_lr``,
         dynamics at ``lr``), ``reward``, ``value``, ``actor`` (policy), ``alpha`` (``log_alpha``).
         """
-        m, c = self.modules, self.cfg
+        m, c = self.components, self.cfg
         return {
             "dynamics": [dict(params=list(m.encoder.parameters()), lr=c.encoder_lr, max_grad_norm=None),
                          dict(params=list(m.dynamics.parameters()), lr=c.lr, max_grad_norm=None)],

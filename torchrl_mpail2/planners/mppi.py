@@ -71,12 +71,12 @@ class LatentMPPIPlanner(MPCPlannerBase):
         self.cfg = cfg or PlannerConfig()
         if self.cfg.num_elites > self.cfg.num_candidates:
             raise ValueError(f"num_elites ({self.cfg.num_elites}) > num_candidates ({self.cfg.num_candidates})")
-        self.__dict__["modules"] = modules  # the planner acts with the learner's networks; it does not own them
+        self.__dict__["components"] = modules  # the planner acts with the learner's networks; it does not own them
         self.generator = generator
         self.in_keys = list(modules.encoder.in_keys)
         # MPCPlannerBase writes only the action through out_keys; "plan" and "policy_influence" are set directly.
-        self.extra_out_keys = ["plan", "policy_influence"]
         self.horizon, self.action_dim = modules.cfg.horizon, modules.action_dim
+        self.extra_out_shapes = {"plan": (self.horizon, self.action_dim), "policy_influence": (1,)}
         self._prev_mean: Tensor | None = None
         self.last_stats: dict[str, Tensor] = {}
 
@@ -108,7 +108,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     def score(self, z: Tensor, plans: Tensor, heads: Tensor) -> Tensor:
         """Returns of ``plans [B, C, H, A]`` from latents ``z [B, Z]`` -> ``[B, C]``."""
-        m, cfg = self.modules, self.cfg
+        m, cfg = self.components, self.cfg
         batch, num = plans.shape[:2]
         dynamics, reward = m.dynamics.module, m.reward.module
         h_now0, _ = reward.project(z)  # the start latent is shared by all candidates: project it once
@@ -128,7 +128,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
     # ---- Algorithm 2 ------------------------------------------------------------------------------
     @torch.no_grad()
     def planning(self, td: TensorDictBase) -> Tensor:
-        cfg, m = self.cfg, self.modules
+        cfg, m = self.cfg, self.components
         validate_observations(td, m.encoder.observation_shapes)
         batch_shape = td.batch_size
         flat = td.reshape(-1) if len(batch_shape) != 1 else td

@@ -57,8 +57,13 @@ class MPAIL2Updater:
             torch.nn.utils.clip_grad_norm_(params, clip)
         optimizer.step()
 
-    def update(self, tensordict: TensorDictBase) -> TensorDictBase:
+    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None) -> TensorDictBase:
         """One update on a replay batch ``[B, T]`` that carries expert pairs under ``"expert"``.
+
+        Args:
+            tensordict: the batch of every stage.
+            policy_tensordict (optional): a separate batch for the reward, value and actor stages (the
+                paper's [-O] ablation trains those on the latest episode only, the world model off-policy).
 
         Returns:
             TensorDict: every ``loss_*`` term and diagnostic, detached.
@@ -68,6 +73,8 @@ class MPAIL2Updater:
         self._step("dynamics", metrics["loss_dynamics"])
         # The encoder changes only in the dynamics stage, so latents encoded now are exactly
         # what the reward, value and actor stages would each encode.
+        if policy_tensordict is not None:
+            tensordict = policy_tensordict
         latents = loss.replay_latents(tensordict)
         expert_latents = loss.expert_latents(tensordict)
         out = loss.reward_loss(tensordict, latents=latents, expert_latents=expert_latents)

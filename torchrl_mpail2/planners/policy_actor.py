@@ -1,0 +1,60 @@
+r"""Acting with the multi-step policy alone (the paper's [-P] ablation) and random warm-up actions."""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from torchrl_mpail2.modules.encoder import validate_observations
+from torchrl_mpail2.modules.factory import MPAIL2Modules
+from torchrl_mpail2.modules.policy import is_deterministic
+
+
+class PolicyActor(TensorDictModuleBase):
+    r"""Acts with the first step of :math:`\pi_\phi(\cdot \mid e_\omega(o_t))` (no planner).
+
+    Writes ``"action"`` and ``"plan"`` like :class:`LatentMPPIPlanner`, so that either can drive a collector.
+    """
+
+    def __init__(self, modules: MPAIL2Modules, action_key="action"):
+        super().__init__()
+        self.__dict__["components"] = modules
+        self.in_keys = list(modules.encoder.in_keys)
+        self.out_keys = [action_key, "plan"]
+        self.extra_out_shapes = {"plan": (modules.cfg.horizon, modules.action_dim)}
+
+    @torch.no_grad()
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        m = self.components
+        validate_observations(tensordict, m.encoder.observation_shapes)
+        plan, _ = m.policy.net(m.encoder.encode(tensordict), deterministic=is_deterministic())
+        tensordict.set("plan", plan)
+        tensordict.set(self.out_keys[0], plan[..., 0, :])
+        return tensordict
+
+
+class WarmupSwitch(TensorDictModuleBase):
+    """Wraps an actor; while ``random_actions`` is set it writes uniform random actions instead.
+
+    Lets one collector run the paper's random warm-up episodes and then the planner. Random steps also
+    write zeros for the actor's other outputs (``extra_out_shapes``), since collectors and replay storages
+    lay out their buffers from the first step.
+    """
+
+    def __init__(self, actor: TensorDictModuleBase, action_spec, random_actions: bool = False):
+        super().__init__()
+        self.actor = actor
+        self.action_spec = action_spec
+        self.random_actions = random_actions
+        self.in_keys = list(actor.in_keys)
+        self.out_keys = list(actor.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if self.random_actions:
+            shape = tensordict.batch_size
+            action = self.action_spec.rand(shape)
+            tensordict.set(self.out_keys[0], action)
+            for key, key_shape in getattr(self.actor, "extra_out_shapes", {}).items():
+                tensordict.set(key, action.new_zeros(*shape, *key_shape))
+            return tensordict
+        return self.actor(tensordict)

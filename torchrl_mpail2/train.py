@@ -1,0 +1,49 @@
+"""Command line: ``python -m torchrl_mpail2.train --preset point_mass [section.field=value ...]``.
+
+Also ``--resume RUN_DIR`` to continue a run, ``--init-from CKPT --transfer all|world-model`` to start
+from another run's weights, and ``--print-config`` to show the resolved config and exit.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from torchrl_mpail2.trainers.config import apply_overrides
+from torchrl_mpail2.trainers.presets import PRESETS, preset
+
+
+def build_parser(default_preset: str = "lift_state") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS))
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR from checkpoints/last")
+    p.add_argument("--init-from", metavar="CKPT", help="initialise weights from another run's checkpoint folder")
+    p.add_argument("--transfer", default="all", choices=["all", "world-model"])
+    p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
+    return p
+
+
+def main(argv: list[str] | None = None, default_preset: str = "lift_state") -> dict | None:
+    args, overrides = build_parser(default_preset).parse_known_args(argv)
+    from torchrl_mpail2.trainers.trainer import MPAIL2Trainer
+
+    if args.resume:
+        if overrides:
+            sys.exit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
+        trainer = MPAIL2Trainer.resume(args.resume)
+    else:
+        cfg = apply_overrides(preset(args.preset), overrides)
+        print(cfg.to_json())
+        if args.print_config:
+            return None
+        trainer = MPAIL2Trainer(cfg)
+        if args.init_from:
+            trainer.init_from(args.init_from, args.transfer)
+    print(f"run folder: {trainer.run_dir}")
+    summary = trainer.train()
+    print(json.dumps(summary, indent=2))
+    return summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,170 @@
+"""Run configuration: the training loop's settings plus the agent's, with command-line overrides."""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+
+from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
+
+#: Ablations of the paper's Table 2, as switches of one config.
+ABLATIONS = {
+    "none": "MPAIL2: planner, world model, off-policy reward/value/policy",
+    "P": "[-P] MAIRL: act with the policy (first step of its plan), no planner",
+    "O": "[-O] MPAIL: reward, value and policy trained on the latest episode only; world model off-policy",
+}
+
+
+@dataclass
+class TrainConfig:
+    """Settings of the training loop (Algorithm 1)."""
+
+    env: str = "robosuite/Lift"
+    """Environment name understood by ``torchrl_mpail2.envs.make_env``."""
+    obs: str = "state"
+    """Observation mode (robosuite: state | pixels | external_pixels)."""
+    seed: int = 0
+    """Seed of torch, the environments and the demonstrations."""
+    demos: str | None = None
+    """Path of a demonstration directory; None records scripted-expert demos into demos/ on first use."""
+    num_demos: int = 10
+    """Number of expert episodes recorded when ``demos`` is None."""
+    total_episodes: int = 200
+    """Training episodes (warm-up included)."""
+    warmup_episodes: int = 2
+    """Episodes of uniformly random actions before learning starts."""
+    utd: float = 1.0
+    """Updates per collected environment step (Table 4: 1)."""
+    batch_size: int = 256
+    """Sub-trajectories per update (each H steps long)."""
+    eval_every: int = 10
+    """Evaluate every this many episodes (0: never)."""
+    eval_episodes: int = 10
+    """Episodes per evaluation, deterministic planner."""
+    checkpoint_every: int = 10
+    """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too)."""
+    success_window: int = 25
+    """Moving window (episodes) of the logged training success rate."""
+    run_dir: str | None = None
+    """Run folder; None makes runs/<env>-<seed>-<time>."""
+    replay_size: int | None = None
+    """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded buffer."""
+    logger: str = "csv"
+    """csv | wandb | tensorboard | none."""
+    ablation: str = "none"
+    """One of ABLATIONS' keys."""
+    threads: int | None = None
+    """torch intra-op threads (None: torch's default)."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+
+    def __post_init__(self) -> None:
+        if self.ablation not in ABLATIONS:
+            raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}"
+                              " ([-PM] DAC and [-PMO] AIRL are not implemented yet)")
+        for name in ("total_episodes", "batch_size", "eval_episodes", "success_window", "num_demos"):
+            if getattr(self, name) <= 0:
+                raise ConfigError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.warmup_episodes < 0 or self.warmup_episodes >= self.total_episodes:
+            raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
+        if self.utd <= 0:
+            raise ConfigError(f"TrainConfig.utd must be > 0, got {self.utd}")
+        if self.logger not in ("csv", "wandb", "tensorboard", "none"):
+            raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
+
+
+@dataclass
+class ExperimentConfig:
+    """Everything a run needs: loop, networks, losses, planner."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+
+    def __post_init__(self) -> None:
+        if self.loss.gamma != self.planner.gamma:
+            raise ConfigError(f"loss.gamma ({self.loss.gamma}) and planner.gamma ({self.planner.gamma}) must agree")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ExperimentConfig":
+        unknown = sorted(set(data) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ConfigError(f"unknown config section(s) {unknown}; sections: train, model, loss, planner")
+        parts = {}
+        for f in fields(cls):
+            section_cls = type(getattr(cls(), f.name))
+            parts[f.name] = _build(section_cls, data.get(f.name, {}))
+        return cls(**parts)
+
+
+def _build(section_cls, values: dict):
+    known = {f.name: f for f in fields(section_cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown {section_cls.__name__} field(s) {unknown}; known: {sorted(known)}")
+    defaults = section_cls()
+    kwargs = {k: tuple(v) if isinstance(getattr(defaults, k), tuple) and isinstance(v, list) else v for k, v in values.items()}
+    return section_cls(**kwargs)
+
+
+def _parse_value(text: str, current):
+    if text.lower() == "null" or (text.lower() == "none" and not isinstance(current, str)):
+        return None
+    if isinstance(current, bool):
+        if text.lower() in ("1", "true", "yes"):
+            return True
+        if text.lower() in ("0", "false", "no"):
+            return False
+        raise ConfigError(f"expected a boolean, got {text!r}")
+    if isinstance(current, tuple):
+        return tuple(_parse_value(t, current[0] if current else 0) for t in text.split(",") if t)
+    if isinstance(current, int):
+        return int(text)
+    if isinstance(current, float):
+        return float(text)
+    try:
+        return json.loads(text) if current is None and text[:1] in "0123456789-[{" else text
+    except json.JSONDecodeError:
+        return text
+
+
+def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
+    """Returns a new config with ``section.field=value`` (or ``--section.field value``) overrides applied.
+
+    Examples:
+        >>> cfg = apply_overrides(ExperimentConfig(), ["planner.num_candidates=256", "--model.hidden_dims", "64,64"])
+        >>> cfg.planner.num_candidates, cfg.model.hidden_dims
+        (256, (64, 64))
+    """
+    data = cfg.to_dict()
+    pairs, i = [], 0
+    while i < len(overrides):
+        item = overrides[i].removeprefix("--")
+        if "=" in item:
+            pairs.append(item.split("=", 1))
+            i += 1
+        elif i + 1 < len(overrides):
+            pairs.append((item, overrides[i + 1]))
+            i += 2
+        else:
+            raise ConfigError(f"override {overrides[i]!r} has no value")
+    for path, text in pairs:
+        section, _, name = path.partition(".")
+        if not name:  # bare names go to the train section
+            section, name = "train", section
+        section = section.replace("-", "_")
+        name = name.replace("-", "_")
+        if section not in data:
+            raise ConfigError(f"unknown config section {section!r} in override {path!r}; sections: {sorted(data)}")
+        if name not in data[section]:
+            raise ConfigError(f"unknown field {section}.{name}; known: {sorted(data[section])}")
+        current = getattr(getattr(cfg, section), name)
+        data[section][name] = _parse_value(text, current)
+    return ExperimentConfig.from_dict(data)
+

@@ -1,0 +1,317 @@
+"""The MPAIL2 training loop (Algorithm 1) from TorchRL parts: a Collector driving the planner,
+a TensorDictReplayBuffer with a SliceSampler, a demonstration buffer and the per-stage updater."""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers import SliceSampler
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
+
+from torchrl_mpail2.data import DemoBuffer, Demonstrations, load_demos, record_demos
+from torchrl_mpail2.experts import get_expert
+from torchrl_mpail2.modules.factory import make_mpail2_modules
+from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
+from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
+from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
+from torchrl_mpail2.trainers import checkpoint as ckpt
+from torchrl_mpail2.trainers.config import ExperimentConfig
+from torchrl_mpail2.trainers.logs import RunLogger
+from torchrl_mpail2.trainers.update import MPAIL2Updater
+
+log = logging.getLogger(__name__)
+TRAJ_KEY = ("collector", "traj_ids")
+#: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
+DEFAULT_EPISODE_BOUND = 1000
+#: What ``--transfer`` copies from another run: everything, or only the world model.
+TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
+
+
+def default_demo_dir(cfg: ExperimentConfig) -> Path:
+    t = cfg.train
+    return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}-{t.num_demos}ep-seed{t.seed}"
+
+
+class MPAIL2Trainer:
+    """Trains MPAIL2 online from observation-only demonstrations.
+
+    Args:
+        cfg (ExperimentConfig): run configuration.
+
+    Keyword Args:
+        env_fn (Callable, optional): builds one environment (default: ``make_env(cfg.train.env, ...)``).
+        demos (Demonstrations, optional): expert observations (default: ``cfg.train.demos`` or scripted demos).
+        run_dir (str or Path, optional): overrides ``cfg.train.run_dir``.
+
+    Examples:
+        >>> from torchrl_mpail2.trainers import ExperimentConfig, MPAIL2Trainer, preset  # doctest: +SKIP
+        >>> trainer = MPAIL2Trainer(preset("point_mass"))  # doctest: +SKIP
+        >>> summary = trainer.train()  # doctest: +SKIP
+    """
+
+    def __init__(self, cfg: ExperimentConfig, *, env_fn: Callable | None = None, demos: Demonstrations | None = None,
+                 run_dir: str | Path | None = None):
+        self.cfg = cfg
+        t = cfg.train
+        if t.threads:
+            torch.set_num_threads(t.threads)
+        torch.manual_seed(t.seed)
+        if env_fn is None:
+            from torchrl_mpail2.envs import make_env
+
+            def env_fn(seed=t.seed):
+                return make_env(t.env, obs=t.obs, seed=seed)
+        self.env_fn = env_fn
+        self.run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.env = env_fn()
+        self.demos = demos if demos is not None else self._load_or_record_demos()
+        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, cfg.model,
+                                           observation_keys=self.demos.observation_keys)
+        self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
+        self.modules.encoder.net.set_normalization(self.demo_buffer.observation_stats(self.modules.encoder.net.vector_keys))
+        self.loss = MPAIL2Loss(self.modules, cfg.loss)
+        self.updater = MPAIL2Updater(self.loss)
+        self.planner = LatentMPPIPlanner(self.modules, self.env.action_spec, cfg.planner)
+        actor = PolicyActor(self.modules) if t.ablation == "P" else self.planner
+        self.actor = WarmupSwitch(actor, self.env.action_spec)
+        horizon = cfg.model.horizon
+        self.replay = self._make_replay(self.run_dir / "replay_storage", horizon)
+        self.latest = self._make_replay(None, horizon) if t.ablation == "O" else None
+        self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
+        self.best_eval = -math.inf
+        (self.run_dir / "config.json").write_text(cfg.to_json())
+        self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
+
+    # ---- setup -----------------------------------------------------------------------------------
+    def _load_or_record_demos(self) -> Demonstrations:
+        t = self.cfg.train
+        if t.demos is not None:
+            return load_demos(t.demos, self.env.observation_spec)
+        path = default_demo_dir(self.cfg)
+        if path.exists():
+            return load_demos(path, self.env.observation_spec)
+        demo_env = self.env_fn(seed=t.seed + 1_000_000)
+        expert = get_expert(t.env, demo_env)
+        log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
+        return record_demos(demo_env, expert, t.num_demos, out=path, seed=t.seed + 1_000_000, progress=t.progress,
+                            env_id=t.env, env_kwargs={"obs": t.obs})
+
+    def _episode_bound(self) -> int:
+        """Longest possible episode, read from the environment (``horizon`` or ``max_episode_steps``)."""
+        env = self.env
+        while env is not None:
+            for name in ("horizon", "max_episode_steps", "_max_episode_steps"):
+                value = getattr(env, name, None)
+                if isinstance(value, int) and value > 0:
+                    return value
+            env = getattr(env, "base_env", None) or getattr(env, "_env", None)
+        return DEFAULT_EPISODE_BOUND
+
+    def _make_replay(self, scratch: Path | None, horizon: int) -> TensorDictReplayBuffer:
+        t = self.cfg.train
+        capacity = t.replay_size or t.total_episodes * self._episode_bound()
+        if scratch is not None:
+            # the live storage is a working copy; what survives a crash is the copy in checkpoints/last
+            shutil.rmtree(scratch, ignore_errors=True)
+        storage = LazyMemmapStorage(capacity, scratch_dir=scratch)
+        sampler = SliceSampler(slice_len=horizon, traj_key=TRAJ_KEY, strict_length=True)
+        return TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=t.batch_size * horizon)
+
+    # ---- one batch -------------------------------------------------------------------------------
+    def sample_batch(self, replay: TensorDictReplayBuffer) -> TensorDict:
+        """``[B, H]`` sub-trajectories from ``replay`` with expert windows under ``"expert"``."""
+        horizon, batch = self.cfg.model.horizon, self.cfg.train.batch_size
+        td = replay.sample().reshape(batch, horizon)
+        td.set("expert", self.demo_buffer.sample_windows(batch, horizon))
+        return td
+
+    def update(self, num_updates: int) -> dict:
+        """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""
+        sums: dict[str, float] = {}
+        start = time.perf_counter()
+        for _ in range(num_updates):
+            td = self.sample_batch(self.replay)
+            td_policy = self.sample_batch(self.latest) if self.latest is not None else None
+            metrics = self.updater.update(td, td_policy)
+            for k, v in metrics.items():
+                sums[k] = sums.get(k, 0.0) + float(v)
+        self.counters["updates"] += num_updates
+        out = {k: v / max(num_updates, 1) for k, v in sums.items()}
+        out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
+        return out
+
+    # ---- evaluation ------------------------------------------------------------------------------
+    @torch.no_grad()
+    def evaluate(self, episodes: int | None = None) -> dict:
+        """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return."""
+        episodes = episodes or self.cfg.train.eval_episodes
+        env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.seed + 10_000)
+        saved = self.planner.get_extra_state()
+        successes, returns = [], []
+        actor = self.actor.actor
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            for _ in range(episodes):
+                traj = env.rollout(100_000, actor, break_when_any_done=True)
+                successes.append(float(traj["next", "success"][-1].item()))
+                returns.append(float(traj["next", "episode_task_return"][-1].item()))
+        self.planner.set_extra_state(saved)
+        mean_return = sum(returns) / len(returns)
+        demo_return = self.demos.mean_return
+        return {"success_rate": sum(successes) / len(successes), "return": mean_return,
+                "normalized_return": mean_return / demo_return if demo_return else float("nan")}
+
+    # ---- checkpoints -----------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        return {"modules": self.modules.state_dict(), "loss": self.loss.state_dict(),
+                "updater": self.updater.state_dict(), "planner": self.planner.get_extra_state(),
+                "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
+                "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict()}
+
+    def save(self, tag: str, with_replay: bool = False) -> Path:
+        return ckpt.write_checkpoint(self.run_dir / "checkpoints" / tag, self.state_dict(),
+                                     self.replay if with_replay else None)
+
+    def load(self, path: str | Path, with_replay: bool = True) -> None:
+        """Restores everything a checkpoint holds (the replay buffer too, when present and asked for)."""
+        state = ckpt.read_checkpoint(path)
+        self.modules.load_state_dict(state["modules"])
+        self.loss.load_state_dict(state["loss"])
+        self.updater.load_state_dict(state["updater"])
+        self.planner.set_extra_state(state["planner"])
+        self.demo_buffer.generator.set_state(state["demo_rng"])
+        ckpt.set_rng_state(state["rng"])
+        self.counters.update(state["counters"])
+        self.best_eval = state["best_eval"]
+        if with_replay and ckpt.has_replay(path):
+            self.replay.loads(Path(path) / ckpt.REPLAY_DIR)
+
+    def init_from(self, path: str | Path, transfer: str = "all") -> None:
+        """Copies weights of another run's checkpoint: ``all`` components or only the ``world-model``."""
+        if transfer not in TRANSFER_PARTS:
+            raise ValueError(f"transfer must be one of {sorted(TRANSFER_PARTS)}, got {transfer!r}")
+        weights = ckpt.read_checkpoint(path)["modules"]
+        for part in TRANSFER_PARTS[transfer]:
+            prefix = part + "."
+            getattr(self.modules, part).load_state_dict({k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
+        if transfer == "all":
+            self.loss.value_loss.target_qvalue_network_params.data.update_(self.loss.value_loss.qvalue_network_params.data)
+
+    @classmethod
+    def resume(cls, run_dir: str | Path, **kwargs) -> "MPAIL2Trainer":
+        """Rebuilds a run from its ``config.json`` and continues from ``checkpoints/last``."""
+        run_dir = Path(run_dir)
+        cfg = ExperimentConfig.from_dict(json.loads((run_dir / "config.json").read_text()))
+        trainer = cls(cfg, run_dir=run_dir, **kwargs)
+        trainer.load(run_dir / "checkpoints" / "last")
+        trainer.logger.truncate_after(trainer.counters["episodes"])
+        return trainer
+
+    # ---- the loop --------------------------------------------------------------------------------
+    def _collector(self) -> Collector:
+        env = self.env_fn(seed=self.cfg.train.seed + self.counters["episodes"])
+        return Collector(env, self.actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=1, traj_format="padded")
+
+    def _store(self, episode: TensorDict) -> TensorDict:
+        episode = episode[0][episode[0].get(("collector", "mask"))]
+        keep = [k for k in episode.keys(True, True) if k not in (("collector", "mask"),)]
+        episode = episode.select(*keep)
+        self.replay.extend(episode)
+        if self.latest is not None:
+            self.latest.empty()
+            self.latest.extend(episode)
+        return episode
+
+    def _next_episode(self, state: dict) -> TensorDict:
+        """Next complete episode from the collector. A simulator exception ends that episode with a
+        warning; a fresh collector (and environment) takes over and training goes on."""
+        while True:
+            if state.get("iterator") is None:
+                state["collector"] = self._collector()
+                state["iterator"] = iter(state["collector"])
+            try:
+                return next(state["iterator"])
+            except (RuntimeError, ValueError, FloatingPointError) as err:
+                self.counters["warnings"] += 1
+                if self.counters["warnings"] > 100:
+                    raise
+                warnings.warn(f"episode {self.counters['episodes'] + 1} aborted by the environment ({err!r}); "
+                              "restarting the collector", RuntimeWarning)
+                state["collector"].shutdown()
+                state["iterator"] = None
+
+    def train(self) -> dict:
+        """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time)."""
+        t = self.cfg.train
+        bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
+        start, evaluation, state = time.perf_counter(), None, {}
+        try:
+            while self.counters["episodes"] < t.total_episodes:
+                # the first step of an episode may already be in flight when the previous one is yielded
+                self.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
+                tick = time.perf_counter()
+                batch = self._next_episode(state)
+                collect_s = time.perf_counter() - tick
+                episode = self._store(batch)
+                steps = episode.shape[0]
+                record = self._episode_record(episode)
+                record["env_steps_per_s"] = steps / collect_s
+                self.counters["episodes"] += 1
+                self.counters["env_steps"] += steps
+                if self.counters["episodes"] >= t.warmup_episodes:
+                    record.update(self.update(max(1, round(t.utd * steps))))
+                record.update(self.counters)
+                self.logger.log_episode(record)
+                done = self.counters["episodes"]
+                if t.eval_every and (done % t.eval_every == 0 or done == t.total_episodes):
+                    evaluation = self._evaluate_and_checkpoint()
+                if t.checkpoint_every and done % t.checkpoint_every == 0:
+                    self.save(f"episode_{done:06d}")
+                bar.update(1)
+                bar.set_postfix(success=f"{self.logger.success_rate(t.success_window):.2f}",
+                                eval="-" if evaluation is None else f"{evaluation['success_rate']:.2f}",
+                                sps=f"{record['env_steps_per_s']:.1f}")
+        finally:
+            bar.close()
+            if state.get("collector") is not None:
+                state["collector"].shutdown()
+        self.save("last", with_replay=True)
+        from torchrl_mpail2.trainers.plots import plot_run
+
+        plot_run(self.run_dir, t.success_window)
+        summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
+                   "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
+                   "best_eval_success": self.best_eval if self.best_eval > -math.inf else None,
+                   "last_eval": evaluation}
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        return summary
+
+    def _evaluate_and_checkpoint(self) -> dict:
+        evaluation = self.evaluate()
+        evaluation["episode"] = self.counters["episodes"]
+        self.logger.log_eval(evaluation)
+        if evaluation["success_rate"] > self.best_eval:
+            self.best_eval = evaluation["success_rate"]
+            self.save("best")
+        self.save("last", with_replay=True)
+        return evaluation
+
+    def _episode_record(self, episode: TensorDict) -> dict:
+        record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0],
+                  "success": float(episode["next", "success"][-1].item()),
+                  "task_return": float(episode["next", "episode_task_return"][-1].item()),
+                  "random_actions": bool(self.actor.random_actions)}
+        if "policy_influence" in episode.keys() and not self.actor.random_actions:
+            record["policy_influence"] = float(episode["policy_influence"].mean())
+        return record
