@@ -172,3 +172,20 @@ def test_updater_changes_each_component_and_skips_nonfinite_batches():
         if k.startswith(("dynamics", "encoder", "value")):
             assert torch.equal(v, snapshot[k]), k
         assert torch.isfinite(v.float()).all(), k
+
+
+def test_model_free_losses_isolate_their_gradients():
+    from torchrl_mpail2.objectives import DACLoss
+    m = tiny_modules(horizon=1)
+    loss = DACLoss(m)
+    td = replay_batch()
+    loss.value_loss(td)["loss_value"].backward()
+    assert _has_grad(m.value) and _has_grad(m.encoder)  # DAC trains its encoder through the value
+    assert _no_grad(m.reward) and _no_grad(m.policy)
+    for p in m.parameters():
+        p.grad = None
+    out = loss.actor_loss(td)
+    out["loss_actor"].backward()
+    assert _has_grad(m.policy) and _no_grad(m.value) and _no_grad(m.encoder)
+    with pytest.raises(ValueError, match="single-step policy"):
+        DACLoss(tiny_modules(horizon=3))

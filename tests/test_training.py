@@ -64,6 +64,20 @@ def test_latest_episode_ablation_trains_on_the_last_episode(tmp_path, monkeypatc
     assert len(trainer.latest) == 50 and len(trainer.replay) == 150
 
 
+@pytest.mark.parametrize("ablation", ["PM", "PMO"])
+def test_model_free_ablations_run(tmp_path, monkeypatch, ablation):
+    monkeypatch.chdir(tmp_path)
+    trainer = MPAIL2Trainer(_cfg(f"train.ablation={ablation}", "train.total_episodes=3", "train.warmup_episodes=1",
+                                 "train.eval_every=3", "train.eval_episodes=1", "train.utd=0.1"), run_dir=tmp_path / "r")
+    before = {k: v.clone() for k, v in trainer.modules.encoder.state_dict().items()}
+    summary = trainer.train()
+    assert summary["episodes"] == 3 and summary["updates"] > 0 and trainer.planner is None
+    assert trainer.modules.policy.net.horizon == 1
+    # DAC's encoder learns through the value loss
+    assert any(not torch.equal(v, trainer.modules.encoder.state_dict()[k]) for k, v in before.items())
+    assert (trainer.latest is not None) == (ablation == "PMO")
+
+
 def test_bad_configs_fail_before_training():
     with pytest.raises(ConfigError, match="num_elites"):
         _cfg("planner.num_elites=1000")

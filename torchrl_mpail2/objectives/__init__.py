@@ -1,9 +1,10 @@
 """TorchRL loss modules of MPAIL2, one per optimiser."""
 from torchrl_mpail2.objectives.actor import MultiStepActorLoss
 from torchrl_mpail2.objectives.dynamics import JEPDynamicsLoss
+from torchrl_mpail2.objectives.model_free import DACLoss, ModelFreeActorLoss, ModelFreeValueLoss
 from torchrl_mpail2.objectives.mpail2 import UPDATE_ORDER, MPAIL2Loss
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 from torchrl_mpail2.objectives.value import LambdaReturnValueLoss
 
-__all__ = ["MultiStepActorLoss", "JEPDynamicsLoss", "MPAIL2Loss", "UPDATE_ORDER", "AdversarialRewardLoss",
+__all__ = ["DACLoss", "ModelFreeActorLoss", "ModelFreeValueLoss", "MultiStepActorLoss", "JEPDynamicsLoss", "MPAIL2Loss", "UPDATE_ORDER", "AdversarialRewardLoss",
            "LambdaReturnValueLoss"]

@@ -11,6 +11,8 @@ ABLATIONS = {
     "none": "MPAIL2: planner, world model, off-policy reward/value/policy",
     "P": "[-P] MAIRL: act with the policy (first step of its plan), no planner",
     "O": "[-O] MPAIL: reward, value and policy trained on the latest episode only; world model off-policy",
+    "PM": "[-PM] DAC: no planner, no dynamics model; single-step policy, model-free soft Q, encoder trained by the value loss",
+    "PMO": "[-PMO] AIRL: DAC trained on the latest episode only",
 }
 
 
@@ -59,8 +61,7 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.ablation not in ABLATIONS:
-            raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}"
-                              " ([-PM] DAC and [-PMO] AIRL are not implemented yet)")
+            raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         for name in ("total_episodes", "batch_size", "eval_episodes", "success_window", "num_demos"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)}")

@@ -2,6 +2,7 @@
 a TensorDictReplayBuffer with a SliceSampler, a demonstration buffer and the per-stage updater."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -22,18 +23,24 @@ from tqdm.auto import tqdm
 from torchrl_mpail2.data import DemoBuffer, Demonstrations, load_demos, record_demos
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.modules.factory import make_mpail2_modules
+from torchrl_mpail2.objectives.model_free import DACLoss
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
 from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
 from torchrl_mpail2.trainers import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import ExperimentConfig
 from torchrl_mpail2.trainers.logs import RunLogger
+from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
 from torchrl_mpail2.trainers.update import MPAIL2Updater
 
 log = logging.getLogger(__name__)
 TRAJ_KEY = ("collector", "traj_ids")
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
 DEFAULT_EPISODE_BOUND = 1000
+#: Ablations that plan, that have no world model, and that train reward/value/policy on the latest episode only.
+PLANNING_ABLATIONS = ("none", "O")
+MODEL_FREE_ABLATIONS = ("PM", "PMO")
+LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 #: What ``--transfer`` copies from another run: everything, or only the world model.
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 
@@ -77,18 +84,25 @@ class MPAIL2Trainer:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.env = env_fn()
         self.demos = demos if demos is not None else self._load_or_record_demos()
-        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, cfg.model,
+        model_free = t.ablation in MODEL_FREE_ABLATIONS
+        # the model-free ablations act with a single-step policy, as in the paper's baselines
+        model_cfg = dataclasses.replace(cfg.model, horizon=1) if model_free else cfg.model
+        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg,
                                            observation_keys=self.demos.observation_keys)
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
         self.modules.encoder.net.set_normalization(self.demo_buffer.observation_stats(self.modules.encoder.net.vector_keys))
-        self.loss = MPAIL2Loss(self.modules, cfg.loss)
-        self.updater = MPAIL2Updater(self.loss)
-        self.planner = LatentMPPIPlanner(self.modules, self.env.action_spec, cfg.planner)
-        actor = PolicyActor(self.modules) if t.ablation == "P" else self.planner
+        if model_free:
+            self.loss, self.planner = DACLoss(self.modules, cfg.loss), None
+            self.updater = ModelFreeUpdater(self.loss)
+        else:
+            self.loss = MPAIL2Loss(self.modules, cfg.loss)
+            self.updater = MPAIL2Updater(self.loss)
+            self.planner = LatentMPPIPlanner(self.modules, self.env.action_spec, cfg.planner)
+        actor = self.planner if t.ablation in PLANNING_ABLATIONS else PolicyActor(self.modules)
         self.actor = WarmupSwitch(actor, self.env.action_spec)
         horizon = cfg.model.horizon
         self.replay = self._make_replay(self.run_dir / "replay_storage", horizon)
-        self.latest = self._make_replay(None, horizon) if t.ablation == "O" else None
+        self.latest = self._make_replay(None, horizon) if t.ablation in LATEST_EPISODE_ABLATIONS else None
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
         self.best_eval = -math.inf
         (self.run_dir / "config.json").write_text(cfg.to_json())
@@ -158,7 +172,7 @@ class MPAIL2Trainer:
         """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return."""
         episodes = episodes or self.cfg.train.eval_episodes
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.seed + 10_000)
-        saved = self.planner.get_extra_state()
+        saved = self.planner.get_extra_state() if self.planner is not None else None
         successes, returns = [], []
         actor = self.actor.actor
         with set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -166,7 +180,8 @@ class MPAIL2Trainer:
                 traj = env.rollout(100_000, actor, break_when_any_done=True)
                 successes.append(float(traj["next", "success"][-1].item()))
                 returns.append(float(traj["next", "episode_task_return"][-1].item()))
-        self.planner.set_extra_state(saved)
+        if self.planner is not None:
+            self.planner.set_extra_state(saved)
         mean_return = sum(returns) / len(returns)
         demo_return = self.demos.mean_return
         return {"success_rate": sum(successes) / len(successes), "return": mean_return,
@@ -175,7 +190,8 @@ class MPAIL2Trainer:
     # ---- checkpoints -----------------------------------------------------------------------------
     def state_dict(self) -> dict:
         return {"modules": self.modules.state_dict(), "loss": self.loss.state_dict(),
-                "updater": self.updater.state_dict(), "planner": self.planner.get_extra_state(),
+                "updater": self.updater.state_dict(),
+                "planner": self.planner.get_extra_state() if self.planner is not None else None,
                 "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
                 "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict()}
 
@@ -189,7 +205,8 @@ class MPAIL2Trainer:
         self.modules.load_state_dict(state["modules"])
         self.loss.load_state_dict(state["loss"])
         self.updater.load_state_dict(state["updater"])
-        self.planner.set_extra_state(state["planner"])
+        if self.planner is not None:
+            self.planner.set_extra_state(state["planner"])
         self.demo_buffer.generator.set_state(state["demo_rng"])
         ckpt.set_rng_state(state["rng"])
         self.counters.update(state["counters"])
