@@ -106,10 +106,13 @@ def test_seeded_resets_are_reproducible():
     assert torch.equal(env.reset()["observation"], a)
 
 
-def test_get_expert():
+def test_get_expert(tmp_path, monkeypatch):
+    import torchrl_mpail2.experts.sac as sac
+
     env = make_env("point_mass")
     assert isinstance(get_expert("point_mass", env), PointMassExpert)
-    with pytest.raises(NotImplementedError, match="SAC experts not trained yet"):
+    monkeypatch.setattr(sac, "ASSET_DIR", tmp_path)  # no weights there
+    with pytest.raises(FileNotFoundError, match="python -m torchrl_mpail2.experts.sac --env Hopper-v5"):
         get_expert("gym/Hopper-v5", env)
 
 

@@ -19,7 +19,7 @@ def get_expert(env_name: str, env: EnvBase):
         env (EnvBase): the env the expert will act in (scripted robosuite experts read its specs).
 
     Raises:
-        NotImplementedError: for gym tasks (their SAC experts are not trained yet).
+        FileNotFoundError: for a gym task whose SAC expert weights are not in ``torchrl_mpail2/assets/experts``.
         ValueError: for an unknown env name.
 
     Examples:
@@ -37,5 +37,8 @@ def get_expert(env_name: str, env: EnvBase):
         expert_cls = scripted.LiftExpert if env_name == "robosuite/Lift" else scripted.PushExpert
         return expert_cls(env)
     if env_name.startswith("gym/"):
-        raise NotImplementedError("SAC experts not trained yet")
+        from torchrl_mpail2.experts.sac import ASSET_DIR, SACExpert
+
+        # committed weights of the SAC expert (FileNotFoundError with the training command if absent)
+        return SACExpert(ASSET_DIR / f"{env_name.removeprefix('gym/')}.pt", env.action_spec)
     raise ValueError(f"No expert for env {env_name!r}.")

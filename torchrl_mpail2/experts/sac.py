@@ -1,0 +1,140 @@
+"""Experts for the gymnasium MuJoCo tasks, trained with TorchRL's own SAC.
+
+    python -m torchrl_mpail2.experts.sac --env Hopper-v5 --frames 150000 --out torchrl_mpail2/assets/experts/Hopper-v5.pt
+
+The expert sees the task reward (it is the demonstrator, not the learner). Its weights file is small
+(two 256-wide layers) and holds what :class:`SACExpert` needs to act; demonstrations are then rolled
+out from it on demand (``torchrl_mpail2.demos record --env gym/Hopper-v5``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.objectives import SACLoss, SoftUpdate
+from tqdm.auto import tqdm
+
+ASSET_DIR = Path(__file__).resolve().parents[1] / "assets" / "experts"
+HIDDEN = (256, 256)
+
+
+def make_actor(obs_dim: int, action_spec) -> ProbabilisticActor:
+    """Tanh-Gaussian actor ``observation -> action`` in ``[-1, 1]``."""
+    action_dim = action_spec.shape[-1]
+    net = nn.Sequential(MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=list(HIDDEN),
+                            activation_class=nn.ReLU), NormalParamExtractor())
+    module = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
+    return ProbabilisticActor(module, in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
+                              distribution_kwargs={"low": -1.0, "high": 1.0}, default_interaction_type=ExplorationType.RANDOM)
+
+
+def evaluate(env, actor, episodes: int) -> list[float]:
+    """Task returns of deterministic (mean) episodes."""
+    returns = []
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        for _ in range(episodes):
+            traj = env.rollout(10_000, actor, break_when_any_done=True)
+            returns.append(float(traj["next", "task_reward"].sum()))
+    return returns
+
+
+def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 5000, batch_size: int = 256,
+              eval_episodes: int = 10, progress: bool = True) -> dict:
+    """Trains a SAC expert on ``gym/<env_id>`` and saves its actor; returns a summary (also written as JSON)."""
+    from torchrl_mpail2.envs import make_env
+
+    torch.manual_seed(seed)
+    env = make_env(f"gym/{env_id}", seed=seed)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    actor = make_actor(obs_dim, env.action_spec)
+    qnet = MLP(in_features=obs_dim + env.action_spec.shape[-1], out_features=1, num_cells=list(HIDDEN), activation_class=nn.ReLU)
+    qvalue = ValueOperator(qnet, in_keys=["observation", "action"])
+    with torch.no_grad():
+        actor(env.reset())
+    loss = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", delay_qvalue=True, alpha_init=1.0)
+    loss.set_keys(reward="task_reward")
+    loss.make_value_estimator(gamma=0.99)
+    target = SoftUpdate(loss, tau=0.005)
+    optim = torch.optim.Adam(loss.parameters(), lr=3e-4)
+    replay = TensorDictReplayBuffer(storage=LazyTensorStorage(frames), batch_size=batch_size)
+    collector = Collector(env, actor, frames_per_batch=1000, total_frames=frames, init_random_frames=warmup)
+    start, done_frames, episode_returns = time.perf_counter(), 0, []
+    bar = tqdm(total=frames, disable=not progress, desc=f"SAC {env_id}")
+    for batch in collector:
+        replay.extend(batch.reshape(-1))
+        done_frames += batch.numel()
+        ended = batch["next", "done"].squeeze(-1)
+        episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
+        if done_frames >= warmup:
+            for _ in range(batch.numel()):
+                losses = loss(replay.sample())
+                total = losses["loss_actor"] + losses["loss_qvalue"] + losses["loss_alpha"]
+                optim.zero_grad()
+                total.backward()
+                optim.step()
+                target.step()
+        bar.update(batch.numel())
+        if episode_returns:
+            bar.set_postfix(ret=f"{sum(episode_returns[-10:]) / len(episode_returns[-10:]):.0f}")
+    bar.close()
+    collector.shutdown()
+    returns = evaluate(make_env(f"gym/{env_id}", seed=seed + 10_000), actor, eval_episodes)
+    summary = {"env": env_id, "frames": frames, "seed": seed, "train_seconds": time.perf_counter() - start,
+               "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns)}
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"env": env_id, "obs_dim": obs_dim, "hidden": HIDDEN, "actor": actor.state_dict(), "summary": summary}, out)
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+class SACExpert:
+    """Deterministic (mean) action of a trained SAC actor; reads ``"observation"``, writes ``"action"``.
+
+    Args:
+        path (str or Path): a weights file written by :func:`train_sac`.
+        action_spec: the env's action spec.
+    """
+
+    def __init__(self, path: str | Path, action_spec):
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"no expert weights at {path}; train them with "
+                                    f"`python -m torchrl_mpail2.experts.sac --env {path.stem} --out {path}`")
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        self.actor = make_actor(state["obs_dim"], action_spec)
+        self.actor.load_state_dict(state["actor"])
+        self.summary = state["summary"]
+
+    @torch.no_grad()
+    def __call__(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            return self.actor(tensordict)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = argparse.ArgumentParser(description="Train a SAC expert for a gymnasium MuJoCo task.")
+    p.add_argument("--env", required=True, choices=["Hopper-v5", "Ant-v5", "Humanoid-v5"])
+    p.add_argument("--frames", type=int, default=150_000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--warmup", type=int, default=5000)
+    p.add_argument("--out", type=Path, default=None)
+    args = p.parse_args(argv)
+    out = args.out or ASSET_DIR / f"{args.env}.pt"
+    summary = train_sac(args.env, args.frames, out, seed=args.seed, warmup=args.warmup)
+    print(json.dumps(summary, indent=2))
+    return summary
+
+
+if __name__ == "__main__":
+    main()
