@@ -1,0 +1,52 @@
+"""Each example runs end to end for a handful of steps with tiny settings."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.02", "train.eval_every=2",
+        "train.eval_episodes=1", "train.batch_size=4", "train.progress=false", "model.latent_dim=16",
+        "model.hidden_dims=32,32", "model.coder_dim=32", "model.vector_coder_hidden=32", "model.cnn_channels=4",
+        "planner.num_candidates=16", "planner.num_elites=4", "planner.iterations=1"]
+
+
+def run_example(script, tmp_path, *args, timeout=600):
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, str(ROOT / "examples" / script), *args, *TINY, f"train.run_dir={run_dir}"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True,
+                          text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["episodes"] == 2 and summary["updates"] > 0
+    assert (run_dir / "checkpoints" / "last" / "state.pt").exists() and (run_dir / "curves.png").exists()
+    return summary
+
+
+def test_point_mass_example(tmp_path):
+    run_example("point_mass.py", tmp_path)
+
+
+def test_gym_example_with_user_demonstrations(tmp_path):
+    """Hopper with demonstrations built from a user's own recordings (here: short random rollouts)."""
+    from torchrl_mpail2.data import demos_from_arrays, save_demos
+    from torchrl_mpail2.envs import make_env
+
+    env = make_env("gym/Hopper-v5", seed=0)
+    episodes = []
+    for _ in range(2):
+        traj = env.rollout(20, break_when_any_done=True)
+        obs = torch.cat([traj["observation"], traj["next", "observation"][-1:]])
+        episodes.append({"observation": obs})
+    save_demos(demos_from_arrays(episodes, env_id="gym/Hopper-v5"), tmp_path / "demos")
+    run_example("gym_mujoco.py", tmp_path, "--env", "gym/Hopper-v5", f"train.demos={tmp_path / 'demos'}")
+
+
+@pytest.mark.parametrize("script", ["robosuite_lift.py", "robosuite_push.py"])
+def test_robosuite_examples(tmp_path, script):
+    pytest.importorskip("robosuite")
+    run_example(script, tmp_path, "train.num_demos=1")
