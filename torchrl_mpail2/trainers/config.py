@@ -34,6 +34,8 @@ class TrainConfig:
     """Training episodes (warm-up included)."""
     warmup_episodes: int = 2
     """Episodes of uniformly random actions before learning starts."""
+    max_wall_s: float | None = None
+    """Stop after this many seconds of training (checked after each episode); None: no time limit."""
     utd: float = 1.0
     """Updates per collected environment step (Table 4: 1)."""
     batch_size: int = 256

@@ -275,6 +275,9 @@ class MPAIL2Trainer:
         start, evaluation, state = time.perf_counter(), None, {}
         try:
             while self.counters["episodes"] < t.total_episodes:
+                if t.max_wall_s is not None and time.perf_counter() - start > t.max_wall_s:
+                    log.warning("stopping at the wall-clock budget of %.0f s", t.max_wall_s)
+                    break
                 # the first step of an episode may already be in flight when the previous one is yielded
                 self.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
                 tick = time.perf_counter()
@@ -303,6 +306,8 @@ class MPAIL2Trainer:
             bar.close()
             if state.get("collector") is not None:
                 state["collector"].shutdown()
+        if t.eval_every and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
+            evaluation = self._evaluate_and_checkpoint()  # stopped early: evaluate where it stopped
         self.save("last", with_replay=True)
         from torchrl_mpail2.trainers.plots import plot_run
 

@@ -1,0 +1,69 @@
+"""Learning benchmark: MPAIL2 on robosuite Lift from state with scripted observation-only demonstrations.
+
+    python benchmarks/learning.py --budget-min 90 [section.field=value ...]
+
+Trains the ``lift_state`` preset under a wall-clock budget, then writes ``docs/results/<name>.json`` (episodes,
+env steps, wall time, best/last evaluation success, the config) and ``docs/results/<name>_curves.png``.
+Re-running with ``--summarize RUN_DIR`` rewrites the results from a run folder (e.g. one still going).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import shutil
+import time
+from pathlib import Path
+
+import torch
+
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, plot_run, read_jsonl
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+
+
+def summarize(run_dir: Path, name: str, extra: dict | None = None) -> dict:
+    episodes = read_jsonl(run_dir / METRICS_FILE)
+    evals = read_jsonl(run_dir / EVAL_FILE)
+    config = json.loads((run_dir / "config.json").read_text())
+    result = {
+        "task": config["train"]["env"], "obs": config["train"]["obs"], "demos": config["train"]["num_demos"],
+        "episodes": len(episodes), "env_steps": sum(e["length"] for e in episodes),
+        "train_success_last_25": sum(e["success"] for e in episodes[-25:]) / max(1, len(episodes[-25:])),
+        "evaluations": [{k: e[k] for k in ("episode", "success_rate", "return")} for e in evals],
+        "best_eval_success": max((e["success_rate"] for e in evals), default=None),
+        "last_eval_success": evals[-1]["success_rate"] if evals else None,
+        "mean_update_ms": sum(e.get("update_ms", 0) for e in episodes) / max(1, sum("update_ms" in e for e in episodes)),
+        "machine": {"cpu_threads": torch.get_num_threads(), "platform": platform.platform()},
+        "config": config, **(extra or {}),
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    shutil.copy(plot_run(run_dir), RESULTS / f"{name}_curves.png")
+    return result
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", default="lift_state")
+    p.add_argument("--budget-min", type=float, default=90.0)
+    p.add_argument("--name", default="lift_state_learning")
+    p.add_argument("--run-dir", default="runs/benchmark_lift_state")
+    p.add_argument("--summarize", metavar="RUN_DIR", help="only rewrite the results from an existing run folder")
+    args, overrides = p.parse_known_args()
+    if args.summarize:
+        print(json.dumps(summarize(Path(args.summarize), args.name), indent=2)[:2000])
+        return
+    cfg = apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",
+                                                f"train.run_dir={args.run_dir}", *overrides])
+    start = time.perf_counter()
+    trainer = MPAIL2Trainer(cfg)
+    summary = trainer.train()
+    result = summarize(trainer.run_dir, args.name, {"wall_time_s": time.perf_counter() - start,
+                                                    "budget_s": args.budget_min * 60, "trainer_summary": summary})
+    print(json.dumps({k: v for k, v in result.items() if k != "config"}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
