@@ -22,10 +22,10 @@ def _point_mass() -> ExperimentConfig:
 
 
 def _lift_state_cpu() -> ExperimentConfig:
-    """robosuite Lift from state on a laptop CPU: half-width networks, a lighter planner, batch 128."""
+    """robosuite Lift from state on a laptop CPU: half-width networks, a lighter planner, batch 64, UTD 0.5."""
     return ExperimentConfig(
-        train=TrainConfig(env="robosuite/Lift", obs="state", num_demos=10, total_episodes=300, warmup_episodes=3,
-                          batch_size=128, eval_every=25, eval_episodes=10, checkpoint_every=25),
+        train=TrainConfig(env="robosuite/Lift", obs="state", num_demos=10, total_episodes=500, warmup_episodes=3,
+                          batch_size=64, utd=0.5, eval_every=25, eval_episodes=10, checkpoint_every=25),
         model=ModelConfig(latent_dim=128, hidden_dims=(256, 256), vector_coder_hidden=128, coder_dim=256),
         planner=PlannerConfig(num_candidates=256, num_elites=32, iterations=4),
     )
