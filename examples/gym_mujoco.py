@@ -4,11 +4,7 @@
 
 Demonstrations come from a trained expert (``python -m torchrl_mpail2.experts.sac``) or your own recordings.
 """
-import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import run  # noqa: E402
+from torchrl_mpail2.train import main
 
 if __name__ == "__main__":
-    run("hopper", __doc__, env="gym/Hopper-v5")
+    main(default_preset="hopper", description=__doc__)

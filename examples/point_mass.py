@@ -2,11 +2,7 @@
 
     python examples/point_mass.py
 """
-import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import run  # noqa: E402
+from torchrl_mpail2.train import main
 
 if __name__ == "__main__":
-    run("point_mass", __doc__)
+    main(default_preset="point_mass", description=__doc__)

@@ -4,11 +4,7 @@
     python examples/robosuite_lift.py --obs pixels         # two 64x64 cameras + proprioception
     python examples/robosuite_lift.py train.total_episodes=50 planner.num_candidates=128
 """
-import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import run  # noqa: E402
+from torchrl_mpail2.train import main
 
 if __name__ == "__main__":
-    run("lift_state", __doc__)
+    main(default_preset="lift_state", description=__doc__)

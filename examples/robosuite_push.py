@@ -3,11 +3,7 @@
     python examples/robosuite_push.py
     python examples/robosuite_push.py --env robosuite/PushMirrored --init-from runs/<push run>/checkpoints/best --transfer world-model
 """
-import os
-import sys
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _common import run  # noqa: E402
+from torchrl_mpail2.train import main
 
 if __name__ == "__main__":
-    run("push_state", __doc__)
+    main(default_preset="push_state", description=__doc__)

@@ -6,7 +6,7 @@ factories in :mod:`torchrl_mpail2.modules.factory` compute them from the specs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 
 class ConfigError(ValueError):
@@ -159,26 +159,3 @@ class MPAIL2Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
-
-
-def config_from_dict(cls, data: dict):
-    """Builds a config dataclass from a (possibly nested) dict, rejecting unknown fields.
-
-    Raises:
-        ConfigError: when ``data`` names a field that ``cls`` does not have.
-    """
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise ConfigError(f"unknown {cls.__name__} field(s) {unknown}; known: {sorted(known)}")
-    kwargs = {}
-    for name, value in data.items():
-        default = getattr(cls(), name) if not isinstance(value, dict) else None
-        if isinstance(value, dict):
-            sub_cls = type(getattr(cls(), name))
-            kwargs[name] = config_from_dict(sub_cls, value)
-        elif isinstance(default, tuple) and isinstance(value, list):
-            kwargs[name] = tuple(value)
-        else:
-            kwargs[name] = value
-    return cls(**kwargs)

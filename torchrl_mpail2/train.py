@@ -1,7 +1,7 @@
 """Command line: ``python -m torchrl_mpail2.train --preset point_mass [section.field=value ...]``.
 
-Also ``--resume RUN_DIR`` to continue a run, ``--init-from CKPT --transfer all|world-model`` to start
-from another run's weights, and ``--print-config`` to show the resolved config and exit.
+Also ``--env``/``--obs`` shortcuts, ``--resume RUN_DIR`` to continue a run, ``--init-from CKPT --transfer
+all|world-model`` to start from another run's weights, and ``--print-config`` to show the resolved config.
 """
 from __future__ import annotations
 
@@ -12,10 +12,15 @@ import sys
 from torchrl_mpail2.trainers.config import apply_overrides
 from torchrl_mpail2.trainers.presets import PRESETS, preset
 
+#: Table 4: latents are 512 wide with images.
+IMAGE_LATENT_DIM = 512
 
-def build_parser(default_preset: str = "lift_state") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+
+def build_parser(default_preset: str, description: str | None) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=description or __doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS))
+    p.add_argument("--env", help="environment name (see torchrl_mpail2.envs.ENV_NAMES)")
+    p.add_argument("--obs", help="state | pixels | external_pixels (robosuite)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR from checkpoints/last")
     p.add_argument("--init-from", metavar="CKPT", help="initialise weights from another run's checkpoint folder")
     p.add_argument("--transfer", default="all", choices=["all", "world-model"])
@@ -23,8 +28,9 @@ def build_parser(default_preset: str = "lift_state") -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None, default_preset: str = "lift_state") -> dict | None:
-    args, overrides = build_parser(default_preset).parse_known_args(argv)
+def main(argv: list[str] | None = None, default_preset: str = "lift_state", description: str | None = None) -> dict | None:
+    """Parses arguments, builds (or resumes) a :class:`MPAIL2Trainer`, trains, prints the summary."""
+    args, overrides = build_parser(default_preset, description).parse_known_args(argv)
     from torchrl_mpail2.trainers.trainer import MPAIL2Trainer
 
     if args.resume:
@@ -32,7 +38,14 @@ def main(argv: list[str] | None = None, default_preset: str = "lift_state") -> d
             sys.exit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
         trainer = MPAIL2Trainer.resume(args.resume)
     else:
-        cfg = apply_overrides(preset(args.preset), overrides)
+        cfg = preset(args.preset)
+        if args.env:
+            cfg.train.env = args.env
+        if args.obs:
+            cfg.train.obs = args.obs
+            if args.obs != "state":
+                cfg.model.latent_dim = IMAGE_LATENT_DIM
+        cfg = apply_overrides(cfg, overrides)
         print(cfg.to_json())
         if args.print_config:
             return None
