@@ -153,16 +153,16 @@ class MPAIL2Trainer:
 
     def update(self, num_updates: int) -> dict:
         """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""
-        sums: dict[str, float] = {}
+        sums = None
         start = time.perf_counter()
         for _ in range(num_updates):
             td = self.sample_batch(self.replay)
             td_policy = self.sample_batch(self.latest) if self.latest is not None else None
             metrics = self.updater.update(td, td_policy)
-            for k, v in metrics.items():
-                sums[k] = sums.get(k, 0.0) + float(v)
+            sums = metrics if sums is None else sums + metrics  # stays on device: one transfer per episode
         self.counters["updates"] += num_updates
-        out = {k: v / max(num_updates, 1) for k, v in sums.items()}
+        out = {k: float(v) / max(num_updates, 1) for k, v in (sums or {}).items()}
+        out["nonfinite_skips"] = float(sum(self.updater.skipped.values()))  # a running count, not a mean
         out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
         return out
 
