@@ -1,0 +1,184 @@
+"""Tests for the robosuite TorchRL envs (Lift, Push, PushMirrored) and their scripted experts."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+pytest.importorskip("robosuite")
+
+from torchrl.envs.utils import check_env_specs  # noqa: E402
+
+from torchrl_mpail2.envs.robosuite_env import (  # noqa: E402
+    MAX_EEF_DELTA,
+    WORKSPACE_HIGH,
+    WORKSPACE_LOW,
+    make_robosuite_env,
+)
+from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert  # noqa: E402
+
+STATE_TASKS = ("Lift", "Push", "PushMirrored")
+OBJECT_DIMS = {"Lift": 10, "Push": 11, "PushMirrored": 11}
+ACTION_DIMS = {"Lift": 4, "Push": 3, "PushMirrored": 3}
+IMAGE_KEYS = ("external_image", "wrist_image")
+
+
+@pytest.fixture(scope="module")
+def state_envs():
+    """One state-mode env per task, built lazily: robosuite construction costs about a second each."""
+    cache = {}
+
+    def get(task):
+        if task not in cache:
+            cache[task] = make_robosuite_env(task, obs="state", seed=0)
+        return cache[task]
+
+    yield get
+    for env in cache.values():
+        env.close()
+
+
+def _expert_for(env):
+    return (LiftExpert if env.base_env.task == "Lift" else PushExpert)(env)
+
+
+@pytest.mark.parametrize("task", STATE_TASKS)
+def test_state_specs_and_keys(state_envs, task):
+    env = state_envs(task)
+    check_env_specs(env)
+    assert env.action_spec.shape == (ACTION_DIMS[task],)
+    assert env.reward_key == "task_reward"
+    td = env.reset()
+    assert td["proprio"].shape == (26,) and td["proprio"].dtype == torch.float32
+    assert td["object"].shape == (OBJECT_DIMS[task],) and td["object"].dtype == torch.float32
+    assert td["success"].shape == (1,) and td["success"].dtype == torch.bool
+    assert not any(key in td.keys() for key in IMAGE_KEYS)
+    step = env.rand_step(td)["next"]
+    assert "reward" not in step.keys() and step["task_reward"].shape == (1,)
+    assert step["success"].shape == (1,)
+
+
+def test_pixels_step_renders_upright_images():
+    env = make_robosuite_env("Lift", obs="pixels", horizon=5)
+    try:
+        td = env.rand_step(env.reset())
+        for observation in (td, td["next"]):
+            assert "object" not in observation.keys()
+            assert observation["proprio"].shape == (26,)
+            for key in IMAGE_KEYS:
+                image = observation[key]
+                assert image.shape == (3, 64, 64) and image.dtype == torch.uint8
+                assert image.float().std() > 10.0, f"{key} is (nearly) constant"
+        # Upright: the external camera sees the robot and wall at the top and the white table at the bottom;
+        # the wrist camera sees its fingers at the bottom. Unflipped robosuite images are the other way round.
+        external = td["next", "external_image"].float().mean(0)
+        wrist = td["next", "wrist_image"].float().mean(0)
+        assert external[:16].mean() < external[-16:].mean() - 40
+        assert wrist[-16:].mean() < wrist[:16].mean() - 40
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", STATE_TASKS)
+@pytest.mark.parametrize("obs", ["pixels", "external_pixels"])
+def test_pixel_mode_specs(task, obs):
+    env = make_robosuite_env(task, obs=obs, horizon=10)
+    try:
+        check_env_specs(env)
+        td = env.reset()
+        expected = {"pixels": {"proprio", *IMAGE_KEYS}, "external_pixels": {"external_image"}}[obs]
+        observed = set(env.observation_spec.keys()) - {"success", "step_count", "is_init", "episode_task_return"}
+        assert observed == expected
+        assert td["external_image"].shape == (3, 64, 64)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("task", STATE_TASKS)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_scripted_expert_succeeds(state_envs, task, seed):
+    env = state_envs(task)
+    env.set_seed(seed)
+    with torch.no_grad():
+        rollout = env.rollout(env.base_env.horizon, _expert_for(env))
+    success = rollout["next", "success"].squeeze(-1)
+    assert success[-1], f"{task} expert failed on seed {seed}"
+    assert not success[0], "the task must not start solved"
+    assert not rollout["next", "terminated"].any(), "success must not terminate the episode"
+    if task != "Lift":
+        assert rollout["next", "object"][-1, -1] < 0, "success flag set but the cube is not past the line"
+
+
+def test_expert_rejects_wrong_task(state_envs):
+    with pytest.raises(ValueError, match="Lift"):
+        PushExpert(state_envs("Lift"))
+
+
+def test_horizon_truncates_and_never_terminates():
+    horizon = 5
+    env = make_robosuite_env("Push", horizon=horizon)
+    try:
+        rollout = env.rollout(3 * horizon)  # stops at the first done
+        assert rollout.shape == (horizon,)
+        truncated = rollout["next", "truncated"].squeeze(-1)
+        assert truncated.tolist() == [False] * (horizon - 1) + [True]
+        assert not rollout["next", "terminated"].any()
+        assert torch.equal(rollout["next", "done"], rollout["next", "truncated"])
+        assert rollout["next", "step_count"][-1].item() == horizon
+        # Across the auto-reset, the episode counter restarts.
+        rollout = env.rollout(2 * horizon + 1, break_when_any_done=False)
+        assert rollout["next", "truncated"].squeeze(-1).nonzero().flatten().tolist() == [horizon - 1, 2 * horizon - 1]
+        assert rollout["is_init"].squeeze(-1).nonzero().flatten().tolist() == [0, horizon, 2 * horizon]
+    finally:
+        env.close()
+
+
+def test_seeding_reproduces_resets(state_envs):
+    env = state_envs("Push")
+    cube_positions = []
+    for seed in (3, 3, 4):
+        env.set_seed(seed)
+        td = env.reset()
+        cube_positions.append(td["object"][:3])
+        env.rand_step(td)
+    assert torch.equal(cube_positions[0], cube_positions[1])
+    assert not torch.allclose(cube_positions[0], cube_positions[2])
+
+
+def test_workspace_box_bounds_the_end_effector(state_envs):
+    env = state_envs("Lift")
+    td = env.reset()
+    tolerance = 0.01  # the OSC controller overshoots its target slightly
+    # Down onto the floor, then up and out to the far corner (away from the cube, which starts near x = y = 0).
+    for action, axis, bound in (([0.0, 0.0, -1.0, -1.0], 2, "low"), ([1.0, -1.0, 1.0, -1.0], 0, "high")):
+        for _ in range(40):
+            td["action"] = torch.tensor(action)
+            td = env.step(td)["next"].clone()
+        eef = torch.as_tensor(env.base_env.privileged_state()["eef_pos"])
+        if bound == "low":
+            assert eef[axis] >= WORKSPACE_LOW[axis] - tolerance
+            assert eef[axis] < WORKSPACE_LOW[axis] + 2 * MAX_EEF_DELTA, "the arm should have reached the floor"
+        else:
+            assert eef[axis] <= WORKSPACE_HIGH[axis] + tolerance
+            assert eef[axis] > WORKSPACE_HIGH[axis] - 2 * MAX_EEF_DELTA, "the arm should have reached the wall"
+
+
+def test_non_finite_action_raises_naming_the_task(state_envs, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # mujoco appends its warnings to ./MUJOCO_LOG.TXT
+    env = state_envs("Lift")
+    td = env.reset()
+    td["action"] = torch.full((4,), float("nan"))
+    with pytest.raises(RuntimeError, match="Lift"):
+        env.step(td)
+    td = env.reset()  # the env is usable again after a reset
+    assert torch.isfinite(env.rand_step(td)["next", "proprio"]).all()
+
+
+@pytest.mark.parametrize(
+    ("task", "obs", "message"),
+    [("Stack", "state", "Lift, Push, PushMirrored"), ("Lift", "rgb", "state, pixels, external_pixels")],
+)
+def test_bad_names_raise_value_error(task, obs, message):
+    with pytest.raises(ValueError, match=message):
+        make_robosuite_env(task, obs=obs)

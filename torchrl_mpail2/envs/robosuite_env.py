@@ -1,0 +1,349 @@
+"""TorchRL environment around robosuite manipulation tasks (Lift, Push, PushMirrored), Panda arm.
+
+robosuite's own ``GymWrapper`` reports the horizon end as ``terminated`` (wrong for bootstrapping) and drops
+the success flag, so this is a small :class:`~torchrl.envs.EnvBase` of its own.
+
+Control: robosuite ``OSC_POSITION`` at 20 Hz. An action in ``[-1, 1]`` per axis is an end-effector
+displacement of up to 5 cm per step (robosuite's default ``output_max``), applied relative to the current
+end-effector position. Lift adds a gripper command (-1 open, +1 close); Push keeps the gripper closed so the
+fingers act as a rigid pusher.
+
+Workspace box: the commanded displacement is shortened so that the target stays inside
+``x, y in [-0.25, 0.25]``, ``z in [0.81, 1.15]`` (world frame, metres; table top at ``z = 0.8``, table centre
+at the origin, robot base at ``x = -0.56``). The floor of 1 cm keeps the closed fingers off the table while
+still reaching a 4-5 cm cube's centre.
+
+Observation keys (flat, float32 unless stated):
+
+* ``"proprio"`` ``[26]``: end-effector position (3), finger joint positions (2), sin (7) and cos (7) of
+  the arm joint angles, arm joint velocities (7).
+* ``"object"`` ``[10]`` (Lift) / ``[11]`` (Push): cube position (3), cube quaternion xyzw (4),
+  end-effector minus cube position (3); Push adds the distance the cube still has to travel past the line (1).
+* ``"external_image"`` / ``"wrist_image"``: uint8 ``[3, 64, 64]`` from robosuite's ``agentview`` and
+  ``robot0_eye_in_hand`` cameras, flipped upright (robosuite renders in the OpenGL convention, bottom row first).
+
+Modes: ``"state"`` = proprio + object; ``"pixels"`` = proprio + both images; ``"external_pixels"`` = external
+image only. No renderer is created in state mode.
+
+Every reset and step also writes ``"success"`` (bool ``[1]``), and every step the task reward under
+``"task_reward"`` (logging only; MPAIL2 learns its own reward), ``"done"``, ``"terminated"`` (always False:
+these tasks never terminate) and ``"truncated"`` (True at the horizon).
+"""
+
+from __future__ import annotations
+
+import os
+
+# robosuite picks its GL backend once, when it is first imported; EGL renders headless on the CPU (Mesa),
+# osmesa does not work with this stack.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import robosuite  # noqa: E402
+import torch  # noqa: E402
+from tensordict import TensorDict, TensorDictBase  # noqa: E402
+from torchrl.data import Bounded, Categorical, Composite, Unbounded  # noqa: E402
+from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TransformedEnv  # noqa: E402
+
+from torchrl_mpail2.envs import push_task  # noqa: E402, F401  (registers Push / PushMirrored, patches mujoco compat)
+
+TASKS = ("Lift", "Push", "PushMirrored")
+OBS_MODES = ("state", "pixels", "external_pixels")
+DEFAULT_HORIZON = {"Lift": 100, "Push": 100, "PushMirrored": 100}
+CONTROL_FREQ_HZ = 20
+IMAGE_SIZE = 64
+EXTERNAL_CAMERA = "agentview"
+WRIST_CAMERA = "robot0_eye_in_hand"
+MAX_EEF_DELTA = 0.05  # metres per unit action: robosuite's OSC_POSITION output_max
+WORKSPACE_LOW = np.array([-0.25, -0.25, 0.81])
+WORKSPACE_HIGH = np.array([0.25, 0.25, 1.15])
+GRIPPER_CLOSED = 1.0
+PROPRIO_DIM = 26
+
+# mujoco warnings that mean the physics or the commanded torques went non-finite or diverged.
+_INSTABILITY_WARNINGS = {
+    "BADQACC": mujoco.mjtWarning.mjWARN_BADQACC,
+    "BADQPOS": mujoco.mjtWarning.mjWARN_BADQPOS,
+    "BADQVEL": mujoco.mjtWarning.mjWARN_BADQVEL,
+    "BADCTRL": mujoco.mjtWarning.mjWARN_BADCTRL,
+}
+
+_OSC_POSITION_ARM = {
+    "type": "OSC_POSITION",
+    "input_max": 1,
+    "input_min": -1,
+    "output_max": [MAX_EEF_DELTA] * 3,
+    "output_min": [-MAX_EEF_DELTA] * 3,
+    "kp": 150,
+    "damping_ratio": 1,
+    "impedance_mode": "fixed",
+    "kp_limits": [0, 300],
+    "damping_ratio_limits": [0, 10],
+    "position_limits": None,
+    "input_type": "delta",
+    "input_ref_frame": "base",
+    "interpolation": None,
+    "ramp_ratio": 0.2,
+    "gripper": {"type": "GRIP"},
+}
+
+
+def _check_names(task: str, obs: str) -> None:
+    if task not in TASKS:
+        raise ValueError(f"Unknown robosuite task {task!r}; valid tasks: {', '.join(TASKS)}.")
+    if obs not in OBS_MODES:
+        raise ValueError(f"Unknown observation mode {obs!r}; valid modes: {', '.join(OBS_MODES)}.")
+
+
+class RobosuiteEnv(EnvBase):
+    """A robosuite task as a TorchRL environment (batch size ``[]``); see the module docstring for the keys.
+
+    Args:
+        task: ``"Lift"``, ``"Push"`` or ``"PushMirrored"``.
+        obs: ``"state"``, ``"pixels"`` or ``"external_pixels"``.
+
+    Keyword Args:
+        horizon: steps per episode before ``truncated``; defaults to :data:`DEFAULT_HORIZON` of the task.
+        seed: seeds robosuite at construction (Lift's cube size is drawn then) and the first resets.
+        device: device of the output tensors.
+
+    Raises:
+        ValueError: on an unknown task or observation mode.
+        RuntimeError: from :meth:`step` when the simulator fails (exception or unstable physics); the message
+            names the task. Reset the env before using it again.
+
+    Examples:
+        >>> env = RobosuiteEnv("Push", obs="state", horizon=5)
+        >>> td = env.rollout(10)
+        >>> td.shape, td["next", "truncated"][-1].item(), td["next", "terminated"].any().item()
+        (torch.Size([5]), True, False)
+        >>> td["object"].shape
+        torch.Size([5, 11])
+    """
+
+    def __init__(
+        self,
+        task: str = "Lift",
+        obs: str = "state",
+        *,
+        horizon: int | None = None,
+        seed: int = 0,
+        device: torch.device | str = "cpu",
+    ):
+        _check_names(task, obs)
+        super().__init__(device=device, batch_size=torch.Size([]))
+        self.task = task
+        self.obs_mode = obs
+        self.horizon = DEFAULT_HORIZON[task] if horizon is None else int(horizon)
+        self.is_push = task != "Lift"
+        self._cameras = {"state": [], "pixels": [EXTERNAL_CAMERA, WRIST_CAMERA], "external_pixels": [EXTERNAL_CAMERA]}[
+            obs
+        ]
+        uses_cameras = bool(self._cameras)
+        self._sim_env = robosuite.make(
+            task,
+            robots="Panda",
+            controller_configs={"type": "BASIC", "body_parts": {"right": dict(_OSC_POSITION_ARM)}},
+            use_camera_obs=uses_cameras,
+            has_offscreen_renderer=uses_cameras,
+            has_renderer=False,
+            camera_names=self._cameras or EXTERNAL_CAMERA,
+            camera_heights=IMAGE_SIZE,
+            camera_widths=IMAGE_SIZE,
+            reward_shaping=True,
+            control_freq=CONTROL_FREQ_HZ,
+            # The horizon is counted here; robosuite's own would raise on the step after it.
+            horizon=10**9,
+            ignore_done=True,
+            # A hard reset rebuilds the mujoco model and renderer every episode; the scene never changes here.
+            # Consequence: Lift's cube size is drawn once, from the construction seed.
+            hard_reset=False,
+            seed=seed,
+        )
+        self._steps_taken = 0
+        self._make_specs()
+
+    # -- specs ------------------------------------------------------------------------------------------------
+
+    def _make_specs(self) -> None:
+        action_dim = 3 if self.is_push else 4
+        self.action_spec = Bounded(-1.0, 1.0, (action_dim,), dtype=torch.float32, device=self.device)
+        image_spec = Bounded(0, 255, (3, IMAGE_SIZE, IMAGE_SIZE), dtype=torch.uint8, device=self.device)
+        observations = {"success": Categorical(2, (1,), dtype=torch.bool, device=self.device)}
+        if self.obs_mode in ("state", "pixels"):
+            observations["proprio"] = Unbounded((PROPRIO_DIM,), dtype=torch.float32, device=self.device)
+        if self.obs_mode == "state":
+            object_dim = 11 if self.is_push else 10
+            observations["object"] = Unbounded((object_dim,), dtype=torch.float32, device=self.device)
+        if self.obs_mode in ("pixels", "external_pixels"):
+            observations["external_image"] = image_spec
+        if self.obs_mode == "pixels":
+            observations["wrist_image"] = image_spec.clone()
+        self.observation_spec = Composite(observations, device=self.device)
+        self.reward_spec = Composite(
+            task_reward=Unbounded((1,), dtype=torch.float32, device=self.device), device=self.device
+        )
+        flag = Categorical(2, (1,), dtype=torch.bool, device=self.device)
+        self.done_spec = Composite(done=flag, terminated=flag.clone(), truncated=flag.clone(), device=self.device)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        """Close the env and release robosuite's offscreen renderer, if any."""
+        if not self.is_closed:
+            self._sim_env.close()
+        super().close(raise_if_closed=raise_if_closed)
+
+    # -- privileged access for scripted experts -----------------------------------------------------------------
+
+    @property
+    def sim_env(self):
+        """The wrapped robosuite environment."""
+        return self._sim_env
+
+    def privileged_state(self) -> dict[str, np.ndarray]:
+        """Simulator state that is not (necessarily) part of the observation, for scripted experts.
+
+        Returns:
+            ``eef_pos [3]``, ``cube_pos [3]``, ``cube_quat [4]`` (xyzw), ``cube_half_size [3]``,
+            ``gripper_qpos [2]`` (finger joints, left positive and right negative: the opening
+            ``q[0] - q[1]`` is about 0.08 m wide open and 0.003 m shut), ``table_height [1]``;
+            Push tasks add ``line_y [1]`` and ``push_sign [1]`` (+1 / -1: the y direction the cube must travel).
+        """
+        sim_env = self._sim_env
+        data = sim_env.sim.data
+        robot = sim_env.robots[0]
+        state = {
+            "eef_pos": np.array(data.site_xpos[robot.eef_site_id["right"]]),
+            "cube_pos": np.array(data.body_xpos[sim_env.cube_body_id]),
+            "cube_quat": np.array(data.body_xquat[sim_env.cube_body_id])[[1, 2, 3, 0]],
+            "cube_half_size": np.array(sim_env.cube.size, dtype=np.float64),
+            "gripper_qpos": np.array(data.qpos[robot._ref_gripper_joint_pos_indexes["right"]]),
+            "table_height": np.array([sim_env.table_offset[2]]),
+        }
+        if self.is_push:
+            state["line_y"] = np.array([sim_env.line_y])
+            state["push_sign"] = np.array([sim_env.push_sign])
+        return state
+
+    # -- EnvBase hooks -----------------------------------------------------------------------------------------
+
+    def _set_seed(self, seed: int | None) -> None:
+        # robosuite's env generator is shared by the cube sampler and the robot's initial-joint noise, so
+        # overwriting its state in place reseeds every consumer at once.
+        self._sim_env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        try:
+            sim_obs = self._sim_env.reset()
+        except Exception as error:
+            raise RuntimeError(f"robosuite task {self.task!r} failed to reset: {error}") from error
+        self._steps_taken = 0
+        out = self._observation_td(sim_obs)
+        for key in ("done", "terminated", "truncated"):
+            out.set(key, torch.zeros(1, dtype=torch.bool, device=self.device))
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = self._to_sim_action(tensordict.get("action"))
+        warnings_before = self._instability_warning_counts()
+        try:
+            sim_obs, task_reward, _, _ = self._sim_env.step(action)
+        except Exception as error:
+            raise RuntimeError(f"robosuite task {self.task!r}: simulator step failed: {error}") from error
+        # mujoco does not raise on a divergence or a NaN torque: it warns and silently resets the state (or zeroes
+        # the control), which would hand the learner a teleporting or limp robot. Surface it instead.
+        new_warnings = [
+            name for name, count in self._instability_warning_counts().items() if count > warnings_before[name]
+        ]
+        if new_warnings:
+            raise RuntimeError(
+                f"robosuite task {self.task!r}: simulation became unstable (mujoco {', '.join(new_warnings)}); "
+                "reset the environment"
+            )
+        self._steps_taken += 1
+        out = self._observation_td(sim_obs)
+        truncated = self._steps_taken >= self.horizon
+        out.set("task_reward", torch.tensor([task_reward], dtype=torch.float32, device=self.device))
+        out.set("terminated", torch.zeros(1, dtype=torch.bool, device=self.device))
+        out.set("truncated", torch.tensor([truncated], device=self.device))
+        out.set("done", torch.tensor([truncated], device=self.device))
+        return out
+
+    def _instability_warning_counts(self) -> dict[str, int]:
+        warnings = self._sim_env.sim.data._data.warning
+        return {name: int(warnings[int(kind)].number) for name, kind in _INSTABILITY_WARNINGS.items()}
+
+    # -- conversions --------------------------------------------------------------------------------------------
+
+    def _to_sim_action(self, action: torch.Tensor) -> np.ndarray:
+        """Clip the end-effector displacement to the workspace box; append the fixed gripper for Push."""
+        action = action.detach().to("cpu", torch.float64).numpy().reshape(-1)
+        eef_pos = self.privileged_state()["eef_pos"]
+        target = np.clip(eef_pos + MAX_EEF_DELTA * action[:3], WORKSPACE_LOW, WORKSPACE_HIGH)
+        # NaN passes through on purpose: the step then fails loudly instead of silently doing nothing.
+        position_action = np.clip((target - eef_pos) / MAX_EEF_DELTA, -1.0, 1.0)
+        position_action[np.isnan(action[:3])] = np.nan
+        gripper_action = [GRIPPER_CLOSED] if self.is_push else action[3:4]
+        return np.concatenate([position_action, gripper_action])
+
+    def _observation_td(self, sim_obs: dict) -> TensorDict:
+        out = {"success": np.array([bool(self._sim_env._check_success())])}
+        if self.obs_mode in ("state", "pixels"):
+            out["proprio"] = np.concatenate(
+                [
+                    sim_obs["robot0_eef_pos"],
+                    sim_obs["robot0_gripper_qpos"],
+                    sim_obs["robot0_joint_pos_sin"],
+                    sim_obs["robot0_joint_pos_cos"],
+                    sim_obs["robot0_joint_vel"],
+                ]
+            ).astype(np.float32)
+        if self.obs_mode == "state":
+            state = self.privileged_state()
+            parts = [state["cube_pos"], state["cube_quat"], state["eef_pos"] - state["cube_pos"]]
+            if self.is_push:
+                parts.append([self._sim_env.distance_to_line()])
+            out["object"] = np.concatenate(parts).astype(np.float32)
+        if self.obs_mode in ("pixels", "external_pixels"):
+            out["external_image"] = self._upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
+        if self.obs_mode == "pixels":
+            out["wrist_image"] = self._upright_chw(sim_obs[f"{WRIST_CAMERA}_image"])
+        return TensorDict(
+            {key: torch.as_tensor(value, device=self.device) for key, value in out.items()}, batch_size=[]
+        )
+
+    @staticmethod
+    def _upright_chw(image: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(image[::-1].transpose(2, 0, 1))
+
+
+def make_robosuite_env(
+    task: str,
+    obs: str = "state",
+    seed: int = 0,
+    horizon: int | None = None,
+    device: torch.device | str = "cpu",
+) -> TransformedEnv:
+    """Build a seeded :class:`RobosuiteEnv` with step counting, init tracking and an episode task-return sum.
+
+    Args:
+        task: ``"Lift"``, ``"Push"`` or ``"PushMirrored"``.
+        obs: ``"state"``, ``"pixels"`` or ``"external_pixels"``.
+        seed: seed of robosuite's generator (cube placement, initial joint noise).
+        horizon: episode length in steps; the task default when ``None``.
+        device: device of the output tensors.
+
+    Returns:
+        The env under ``StepCounter``, ``InitTracker`` (``"is_init"``) and
+        ``RewardSum(["task_reward"], ["episode_task_return"])``.
+
+    Raises:
+        ValueError: on an unknown task or observation mode, listing the valid ones.
+    """
+    _check_names(task, obs)
+    base_env = RobosuiteEnv(task, obs, horizon=horizon, seed=seed, device=device)
+    base_env.set_seed(seed)
+    env = TransformedEnv(base_env, StepCounter())
+    env.append_transform(InitTracker(init_key="is_init"))
+    env.append_transform(RewardSum(in_keys=["task_reward"], out_keys=["episode_task_return"]))
+    return env

@@ -1,0 +1,165 @@
+"""Scripted experts for the robosuite tasks, used to record demonstrations.
+
+Each expert is a TensorDict-in / TensorDict-out policy bound to one :class:`RobosuiteEnv` (directly or under
+transforms). It ignores the observation and reads the simulator through
+:meth:`RobosuiteEnv.privileged_state`, then writes ``"action"``. The phase of the motion is recomputed from
+that state at every step (no memory), so the experts need no reset, recover from a failed grasp or a cube that
+slipped sideways, and work inside any rollout or collector that steps the same env.
+
+Measured success over 50 seeded episodes: ``benchmarks/scripted_experts.py`` (``docs/results/scripted_experts.json``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from torchrl_mpail2.envs.robosuite_env import MAX_EEF_DELTA, RobosuiteEnv
+
+GRIPPER_OPEN = -1.0
+GRIPPER_CLOSE = 1.0
+
+
+def _find_robosuite_env(env) -> RobosuiteEnv:
+    """Unwrap TransformedEnvs down to the RobosuiteEnv."""
+    while not isinstance(env, RobosuiteEnv):
+        if not hasattr(env, "base_env"):
+            raise TypeError(f"Scripted experts need a RobosuiteEnv (possibly transformed), got {type(env).__name__}.")
+        env = env.base_env
+    return env
+
+
+def _move_towards(eef_pos: np.ndarray, target: np.ndarray, gain: float = 1.5) -> np.ndarray:
+    """Proportional position command in action units; saturates at the env's 5 cm per step."""
+    return np.clip(gain * (target - eef_pos) / MAX_EEF_DELTA, -1.0, 1.0)
+
+
+class _ScriptedExpert(TensorDictModuleBase):
+    """Shared plumbing: privileged-state lookup, optional Gaussian action noise, writing ``"action"``."""
+
+    tasks: tuple[str, ...] = ()
+
+    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None):
+        super().__init__()
+        self.env = _find_robosuite_env(env)
+        if self.env.task not in self.tasks:
+            raise ValueError(f"{type(self).__name__} drives {self.tasks}, not {self.env.task!r}.")
+        self.in_keys = []
+        self.out_keys = ["action"]
+        self.noise_std = noise_std
+        self._rng = np.random.default_rng(seed)
+
+    def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        raise NotImplementedError
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = self.scripted_action(self.env.privileged_state())
+        if self.noise_std > 0:
+            action = np.clip(action + self.noise_std * self._rng.standard_normal(action.shape), -1.0, 1.0)
+        action = torch.as_tensor(action, dtype=torch.float32, device=self.env.device)
+        tensordict.set("action", action.expand(*tensordict.batch_size, action.shape[-1]).clone())
+        return tensordict
+
+
+class LiftExpert(_ScriptedExpert):
+    """Lift: hover over the cube, descend with the gripper open, close, then lift.
+
+    Phases, chosen from the state at every step:
+
+    1. holding (fingers stopped on the cube, neither wide open nor shut): keep closing and move up;
+    2. at the cube (grip site within 1 cm horizontally and vertically of the cube centre): close;
+    3. otherwise: gripper open; move over the cube, descending only once horizontally aligned.
+
+    A miss leaves the fingers shut (phase 3 again), which re-opens them and re-approaches.
+
+    Args:
+        env: the Lift :class:`RobosuiteEnv`, possibly under transforms.
+
+    Keyword Args:
+        noise_std: std of Gaussian noise added to the action (diversifies demonstrations).
+        seed: seed of that noise.
+    """
+
+    tasks = ("Lift",)
+    lift_height = 0.15  # above the table; Lift succeeds once the cube is 4 cm up
+    hover_clearance = 0.06  # grip site above the cube centre while aligning
+    aligned_tolerance = 0.01
+    shut_opening = 0.01  # finger opening below which the grasp missed
+
+    def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        eef, cube = state["eef_pos"], state["cube_pos"]
+        table_height = float(state["table_height"][0])
+        opening = float(state["gripper_qpos"][0] - state["gripper_qpos"][1])
+        cube_width = 2.0 * float(state["cube_half_size"][:2].max())
+        horizontal_error = np.linalg.norm(cube[:2] - eef[:2])
+        vertical_error = abs(cube[2] - eef[2])
+
+        at_cube = horizontal_error < 1.5 * self.aligned_tolerance and vertical_error < 1.5 * self.aligned_tolerance
+        fingers_on_cube = self.shut_opening < opening < cube_width + 0.01
+        if at_cube and fingers_on_cube:
+            target = np.array([cube[0], cube[1], table_height + self.lift_height])
+            return np.append(_move_towards(eef, target), GRIPPER_CLOSE)
+        if at_cube and opening >= cube_width + 0.01:
+            # Hold still while the fingers close: moving now would knock the cube away.
+            return np.append(_move_towards(eef, cube), GRIPPER_CLOSE)
+        if horizontal_error > self.aligned_tolerance:
+            target = np.array([cube[0], cube[1], max(eef[2], cube[2] + self.hover_clearance)])
+        else:
+            target = cube
+        return np.append(_move_towards(eef, target), GRIPPER_OPEN)
+
+
+class PushExpert(_ScriptedExpert):
+    """Push / PushMirrored: get behind the cube (the side away from the line), lower, push across the line.
+
+    Phases, chosen from the state at every step (``s`` is the push direction along y):
+
+    1. low, behind the cube and laterally within 80 % of its half width: push towards the line, steering x
+       towards the cube's x, until the cube centre is 2 cm past the line, then hold;
+    2. low but not behind / not aligned: rise to the travel height (never drag across the cube);
+    3. high: travel to the pre-push point (cube half width + 3.5 cm behind it) and descend once over it.
+
+    Args:
+        env: the Push or PushMirrored :class:`RobosuiteEnv`, possibly under transforms.
+
+    Keyword Args:
+        noise_std: std of Gaussian noise added to the action (diversifies demonstrations).
+        seed: seed of that noise.
+    """
+
+    tasks = ("Push", "PushMirrored")
+    push_height = 0.025  # grip site above the table: fingertips at about the cube's mid-height
+    travel_height = 0.10  # above the table: clears a 5 cm cube with the fingers
+    standoff = 0.035  # gap behind the cube face at the pre-push point
+    overshoot = 0.02  # push the centre this far past the line, so it stays past it
+    low_margin = 0.02
+
+    def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
+        eef, cube = state["eef_pos"], state["cube_pos"]
+        table_height = float(state["table_height"][0])
+        half = float(state["cube_half_size"][:2].max())
+        s = float(state["push_sign"][0])
+        line_y = float(state["line_y"][0])
+        push_z = table_height + self.push_height
+        travel_z = table_height + self.travel_height
+
+        along = (eef[1] - cube[1]) * s  # negative when the gripper is on the far side from the line
+        lateral = abs(eef[0] - cube[0])
+        low = eef[2] < push_z + self.low_margin
+        behind = along < -(half + 0.005)
+        aligned = lateral < 0.8 * half
+
+        if low and behind and aligned:
+            remaining = (line_y - cube[1]) * s + self.overshoot
+            if remaining <= 0:
+                return np.zeros(3)
+            target = np.array([cube[0], eef[1] + s * min(remaining + 0.02, 0.1), push_z])
+            return _move_towards(eef, target)
+        if low:
+            return _move_towards(eef, np.array([eef[0], eef[1], travel_z]))
+        pre_push = np.array([cube[0], cube[1] - s * (half + self.standoff)])
+        over_pre_push = np.linalg.norm(pre_push - eef[:2]) < 0.01
+        target_z = push_z if over_pre_push else max(travel_z, min(eef[2], travel_z + 0.05))
+        return _move_towards(eef, np.append(pre_push, target_z))
