@@ -133,3 +133,54 @@ def test_killed_run_resumes_with_counters_buffer_and_weights(tmp_path):
     records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(1, 11))
     assert summary["updates"] > counters["updates"]
+
+
+class _FlakyPointMass:
+    """Builds point-mass envs whose 3rd episode raises inside the simulator step, once."""
+
+    def __init__(self):
+        self.raised = False
+
+    def __call__(self, seed=0):
+        from torchrl_mpail2.envs import PointMassEnv, with_bookkeeping
+
+        factory = self
+
+        class Flaky(PointMassEnv):
+            steps = 0
+
+            def _step(self, tensordict):
+                Flaky.steps += 1
+                if seed < 1_000_000 and not factory.raised and Flaky.steps == 2 * 50 + 10:  # not the demo env
+                    factory.raised = True
+                    raise RuntimeError("simulated simulator instability")
+                return super()._step(tensordict)
+
+        return with_bookkeeping(Flaky(seed=seed))
+
+
+def test_simulator_exception_ends_the_episode_with_a_warning_and_training_goes_on(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env_fn = _FlakyPointMass()
+    trainer = MPAIL2Trainer(_cfg("train.total_episodes=4", "train.warmup_episodes=3", "train.utd=0.05", "train.eval_every=0"),
+                            env_fn=env_fn, run_dir=tmp_path / "r")
+    with pytest.warns(RuntimeWarning, match="simulated simulator instability"):
+        summary = trainer.train()
+    assert env_fn.raised and summary["episodes"] == 4 and trainer.counters["warnings"] == 1
+    assert len(trainer.replay) == 4 * 50  # the aborted episode never reached the buffer
+
+
+def test_init_from_transfers_everything_or_only_the_world_model(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cfg = _cfg("train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=0")
+    source = MPAIL2Trainer(cfg, run_dir=tmp_path / "a")
+    source.train()
+    ckpt = tmp_path / "a" / "checkpoints" / "last"
+    for transfer, copied in (("world-model", {"encoder", "dynamics"}), ("all", {"encoder", "dynamics", "reward", "value", "policy"})):
+        torch.manual_seed(123)
+        target = MPAIL2Trainer(cfg, run_dir=tmp_path / transfer)
+        target.init_from(ckpt, transfer)
+        for part in ("encoder", "dynamics", "reward", "value", "policy"):
+            same = all(torch.equal(v, source.modules.state_dict()[f"{part}.{k}"])
+                       for k, v in getattr(target.modules, part).state_dict().items())
+            assert same == (part in copied), (transfer, part)

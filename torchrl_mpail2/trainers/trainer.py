@@ -161,7 +161,7 @@ class MPAIL2Trainer:
             metrics = self.updater.update(td, td_policy)
             sums = metrics if sums is None else sums + metrics  # stays on device: one transfer per episode
         self.counters["updates"] += num_updates
-        out = {k: float(v) / max(num_updates, 1) for k, v in (sums or {}).items()}
+        out = {k: float(v) / max(num_updates, 1) for k, v in ({} if sums is None else sums).items()}
         out["nonfinite_skips"] = float(sum(self.updater.skipped.values()))  # a running count, not a mean
         out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
         return out
