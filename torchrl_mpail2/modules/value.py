@@ -32,9 +32,9 @@ class StackedLinear(nn.Module):
         if heads is not None:
             w, b = w.index_select(0, heads), b.index_select(0, heads)
         num, in_dim, out_dim = w.shape
-        if x.dim() == 2:  # shared input: one wide GEMM
-            y = x @ w.permute(1, 0, 2).reshape(in_dim, num * out_dim)
-            return y.view(x.shape[0], num, out_dim).transpose(0, 1) + b.unsqueeze(1)
+        if x.dim() == 2:  # shared input: one wide GEMM, bias included
+            y = torch.addmm(b.reshape(num * out_dim), x, w.permute(1, 0, 2).reshape(in_dim, num * out_dim))
+            return y.view(x.shape[0], num, out_dim).transpose(0, 1)
         return torch.baddbmm(b.unsqueeze(1), x, w)
 
 
@@ -50,7 +50,7 @@ class StackedLayerNorm(nn.Module):
         w, b = self.weight, self.bias
         if heads is not None:
             w, b = w.index_select(0, heads), b.index_select(0, heads)
-        return F.layer_norm(x, x.shape[-1:]) * w.unsqueeze(1) + b.unsqueeze(1)
+        return torch.addcmul(b.unsqueeze(1), F.layer_norm(x, x.shape[-1:]), w.unsqueeze(1))  # one pass, not two
 
 
 class QEnsembleNet(nn.Module):

@@ -11,6 +11,9 @@ from torchrl.objectives.common import LossModule
 
 from torchrl_mpail2.modules.encoder import ObservationEncoder
 
+#: ``[N, C, H, W]``: a flattened batch of images.
+_IMAGE_DIMS = 4
+
 
 class MPAIL2LossBase(LossModule):
     """Base of the MPAIL2 losses.
@@ -40,6 +43,9 @@ class MPAIL2LossBase(LossModule):
     tensor_keys: _AcceptedKeys
     default_keys = _AcceptedKeys
     encoder_network: ObservationEncoder
+    #: Encode stop-gradient latents (computed with gradients disabled) under bfloat16 autocast. Off by
+    #: default: it changes the latents by about 1e-2; ``MPAIL2Updater(..., bf16_stop_gradient=True)`` sets it.
+    bf16_stop_gradient: bool = False
 
     def __init__(self, encoder_network: ObservationEncoder, reduction: str = "mean"):
         super().__init__()
@@ -67,18 +73,54 @@ class MPAIL2LossBase(LossModule):
         return value
 
     def encode(self, td: TensorDictBase, prefix: tuple[str, ...] = ()) -> Tensor:
-        return self.encoder_network.net(*(self.require(td, (*prefix, k)) for k in self.encoder_network.in_keys))
+        """Latents ``[*B, Z]`` of the observations under ``prefix``."""
+        return self._encode([self.require(td, (*prefix, k)) for k in self.encoder_network.in_keys])
+
+    def _encode(self, observations: list[Tensor]) -> Tensor:
+        """Encodes observations ordered as the encoder's keys, each ``[*B, *shape]`` -> ``[*B, Z]``.
+
+        The batch is flattened and images are handed to the encoder channels-last ``[N, C, H, W]``:
+        oneDNN's convolutions run about twice as fast on that layout as on NCHW (same values).
+        """
+        net = self.encoder_network.net
+        first = observations[0]
+        batch = first.shape[: first.dim() - len(net.shapes[net.keys[0]])]
+        flat = []
+        for key, x in zip(net.keys, observations):
+            x = x.reshape(-1, *net.shapes[key])
+            flat.append(x.contiguous(memory_format=torch.channels_last) if x.dim() == _IMAGE_DIMS else x)
+        if self.bf16_stop_gradient and not torch.is_grad_enabled():
+            with torch.autocast(first.device.type, dtype=torch.bfloat16):
+                return net(*flat).float().reshape(*batch, -1)
+        return net(*flat).reshape(*batch, -1)
+
+    def _pair_latents(self, td: TensorDictBase, prefix: tuple[str, ...]) -> tuple[Tensor, Tensor]:
+        """``(z, z')`` of the observations under ``prefix`` and ``prefix + next``.
+
+        Inside a contiguous ``[*B, T]`` window ``o'_t == o_{t+1}``: then the ``T + 1`` distinct
+        observations are encoded once instead of ``2 T``. Whether that holds is checked on the data
+        (one comparison per key), so batches of unrelated transitions get the plain two encodes.
+        """
+        keys = self.encoder_network.in_keys
+        now = [self.require(td, (*prefix, k)) for k in keys]
+        nxt = [self.require(td, (*prefix, *self._prefix(self.tensor_keys.next), k)) for k in keys]
+        time = td.batch_dims - 1  # time is the last batch dimension
+        steps = td.shape[-1] if td.batch_dims else 0
+        if steps >= 2 and all(torch.equal(o.narrow(time, 1, steps - 1), n.narrow(time, 0, steps - 1))
+                              for o, n in zip(now, nxt)):
+            z = self._encode([torch.cat([o.narrow(time, 0, 1), n], time) for o, n in zip(now, nxt)])
+            return z.narrow(time, 0, steps), z.narrow(time, 1, steps)
+        return self._encode(now), self._encode(nxt)
 
     @torch.no_grad()
     def replay_latents(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
         """Stop-gradient latents ``(z, z')`` of the replayed transitions, shaped like the batch."""
-        return self.encode(td), self.encode(td, self._prefix(self.tensor_keys.next))
+        return self._pair_latents(td, ())
 
     @torch.no_grad()
     def expert_latents(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
         """Stop-gradient latents ``(z, z')`` of the expert pairs under the ``expert`` prefix."""
-        prefix = self._prefix(self.tensor_keys.expert)
-        return self.encode(td, prefix), self.encode(td, prefix + self._prefix(self.tensor_keys.next))
+        return self._pair_latents(td, self._prefix(self.tensor_keys.expert))
 
     def reduce(self, x: Tensor) -> Tensor:
         if self.reduction == "mean":

@@ -4,8 +4,8 @@ from __future__ import annotations
 import contextlib
 
 import torch
-from tensordict import TensorDictBase
-from torch import Tensor
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor, nn
 from torchrl.modules.planners import MPCPlannerBase
 
 from torchrl_mpail2.config import PlannerConfig
@@ -15,6 +15,10 @@ from torchrl_mpail2.modules.factory import MPAIL2Modules
 from torchrl_mpail2.modules.policy import is_deterministic
 from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
+
+
+def _to_bf16(t: Tensor) -> Tensor:
+    return t.to(torch.bfloat16) if t.is_floating_point() else t
 
 
 class LatentMPPIPlanner(MPCPlannerBase):
@@ -35,6 +39,9 @@ class LatentMPPIPlanner(MPCPlannerBase):
     drawn and scored once per call and kept for every iteration (the policy's distribution does not change
     between iterations); non-elite plans get zero weight (the pseudocode's "set to 0" would give them weight);
     the warm start stores the final mean rather than the sample (as TD-MPC2 does).
+
+    With ``cfg.bf16`` the dynamics, reward, value and policy networks run on bfloat16 copies of their
+    parameters (the encoder, the sampling statistics and the returns' sums stay in float32).
 
     In the ``RANDOM`` interaction type (training) the returned plan is a sample of the final Gaussian; in
     ``DETERMINISTIC`` (``set_exploration_type(ExplorationType.DETERMINISTIC)``) it is the mean.
@@ -107,15 +114,18 @@ class LatentMPPIPlanner(MPCPlannerBase):
         return torch.randn(shape, dtype=like.dtype, device=like.device, generator=self.generator)
 
     def score(self, z: Tensor, plans: Tensor, heads: Tensor) -> Tensor:
-        """Returns of ``plans [B, C, H, A]`` from latents ``z [B, Z]`` -> ``[B, C]``."""
+        """Returns of ``plans [B, C, H, A]`` from latents ``z [B, Z]`` -> ``[B, C]`` (float32).
+
+        The networks run in ``z``'s dtype (bfloat16 in the ``bf16`` mode); the return is summed in float32.
+        """
         m, cfg = self.components, self.cfg
         batch, num = plans.shape[:2]
         dynamics, reward = m.dynamics.module, m.reward.module
         h_now0, _ = reward.project(z)  # the start latent is shared by all candidates: project it once
         h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
-        actions = plans.reshape(batch * num, self.horizon, self.action_dim)
-        total = torch.zeros(batch * num, dtype=z.dtype, device=z.device)
+        actions = plans.to(z.dtype).reshape(batch * num, self.horizon, self.action_dim)
+        total = torch.zeros(batch * num, dtype=torch.float32, device=z.device)
         for k in range(self.horizon):
             zk = dynamics(zk, actions[:, k])
             h_now_next, h_next = reward.project(zk)
@@ -126,40 +136,74 @@ class LatentMPPIPlanner(MPCPlannerBase):
         return (total + cfg.gamma ** self.horizon * q).view(batch, num)
 
     # ---- Algorithm 2 ------------------------------------------------------------------------------
-    @torch.no_grad()
+    def _planning_networks(self) -> tuple[nn.Module, ...]:
+        m = self.components
+        return m.dynamics, m.reward, m.value, m.policy
+
+    @contextlib.contextmanager
+    def _low_precision(self):
+        """With ``cfg.bf16``: the planning networks run on bfloat16 copies of their parameters.
+
+        The copies are made once per call (a few ms at the paper's sizes), so every GEMM runs in bf16 with
+        no per-op casts (autocast would re-cast the weights at each call and run LayerNorm in fp32).
+        The encoder stays in fp32; returns are summed and the sampling statistics kept in fp32.
+        """
+        if not self.cfg.bf16:
+            yield None
+            return
+        swaps = [TensorDict.from_module(net).apply(_to_bf16).to_module(net) for net in self._planning_networks()]
+        try:
+            for swap in swaps:
+                swap.__enter__()
+            yield torch.bfloat16
+        finally:
+            for swap in reversed(swaps):
+                swap.__exit__(None, None, None)
+
     def planning(self, td: TensorDictBase) -> Tensor:
-        cfg, m = self.cfg, self.components
-        validate_observations(td, m.encoder.observation_shapes)
+        validate_observations(td, self.components.encoder.observation_shapes)
         batch_shape = td.batch_size
         flat = td.reshape(-1) if len(batch_shape) != 1 else td
+        with torch.inference_mode():
+            mean, plan, influence = self._optimise(flat)
+        # inference tensors cannot be saved for backward later (e.g. replayed actions): hand out normal copies
+        self._prev_mean, plan, influence = mean.clone(), plan.clone(), influence.clone()
+        self.last_stats = {k: v.clone() for k, v in self.last_stats.items()}
+        td.set("plan", plan.reshape(*batch_shape, self.horizon, self.action_dim))
+        td.set("policy_influence", influence.reshape(*batch_shape, 1))
+        return plan[:, 0].reshape(*batch_shape, self.action_dim)
+
+    def _optimise(self, flat: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
+        """Algorithm 2 on ``[B]`` observations -> final ``(mean, plan, policy influence)``."""
+        cfg, m = self.cfg, self.components
         num_envs = flat.shape[0]
-        autocast = torch.autocast(flat.device.type if flat.device else "cpu", dtype=torch.bfloat16) if cfg.bf16 else contextlib.nullcontext()
-        with autocast:
-            z = m.encoder.encode(flat)
-            num_pi = cfg.num_policy_samples
-            num_gauss = cfg.num_candidates - num_pi
-            heads = torch.randperm(m.value.net.num_q, generator=self.generator)[:HEADS_PER_ESTIMATE].to(z.device)
-            mean = self._initial_mean(flat, num_envs, z.float())
-            std = torch.full_like(mean, cfg.std_max)
+        z = m.encoder.encode(flat)
+        num_pi = cfg.num_policy_samples
+        num_gauss = cfg.num_candidates - num_pi
+        heads = torch.randperm(m.value.net.num_q, generator=self.generator)[:HEADS_PER_ESTIMATE].to(z.device)
+        mean = self._initial_mean(flat, num_envs, z)
+        std = torch.full_like(mean, cfg.std_max)
+        with self._low_precision() as dtype:
+            z = z.to(dtype or z.dtype)
+            pi_plans = mean.new_empty(num_envs, 0, self.horizon, self.action_dim)
             if num_pi:
                 pi_plans = m.policy.net(z.unsqueeze(1).expand(num_envs, num_pi, z.shape[-1]), generator=self.generator)[0].float()
-                pi_returns = self.score(z, pi_plans, heads)
-            for _ in range(cfg.iterations):
+            for iteration in range(cfg.iterations):
                 noise = self._noise((num_envs, num_gauss, self.horizon, self.action_dim), mean)
                 plans = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
-                returns = self.score(z, plans, heads)
-                if num_pi:  # policy samples sit at indices >= N - M, as in Algorithm 2
-                    plans, returns = torch.cat([plans, pi_plans], 1), torch.cat([returns, pi_returns], 1)
+                plans = torch.cat([plans, pi_plans], 1)  # policy samples sit at indices >= N - M, as in Algorithm 2
+                if iteration == 0:  # the policy samples are scored once, together with the first Gaussian ones
+                    returns = self.score(z, plans, heads)
+                    pi_returns = returns[:, num_gauss:]
+                else:
+                    returns = torch.cat([self.score(z, plans[:, :num_gauss], heads), pi_returns], 1)
                 weights, elite_index = mppi_weights(returns, cfg.num_elites, cfg.temperature)
                 elites = plans.gather(1, elite_index[..., None, None].expand(-1, -1, self.horizon, self.action_dim))
                 w = weights[..., None, None]
                 mean = (w * elites).sum(1)
                 std = (w * (elites - mean.unsqueeze(1)).pow(2)).sum(1).sqrt().clamp(cfg.std_min, cfg.std_max)
         influence = (weights * (elite_index >= num_gauss)).sum(-1, keepdim=True)
-        self._prev_mean = mean
         plan = mean if is_deterministic() else (mean + std * self._noise(mean.shape, mean)).clamp(-1.0, 1.0)
         self.last_stats = {"policy_influence": influence.mean(), "elite_return": returns.gather(1, elite_index).mean(),
                            "plan_std": std.mean()}
-        td.set("plan", plan.reshape(*batch_shape, self.horizon, self.action_dim))
-        td.set("policy_influence", influence.reshape(*batch_shape, 1))
-        return plan[:, 0].reshape(*batch_shape, self.action_dim)
+        return mean, plan, influence
