@@ -35,7 +35,7 @@ def summarize(run_dir: Path, name: str, extra: dict | None = None) -> dict:
         "best_eval_success": max((e["success_rate"] for e in evals), default=None),
         "last_eval_success": evals[-1]["success_rate"] if evals else None,
         "mean_update_ms": sum(e.get("update_ms", 0) for e in episodes) / max(1, sum("update_ms" in e for e in episodes)),
-        "machine": {"cpu_threads": torch.get_num_threads(), "platform": platform.platform()},
+        "machine": {"torch_threads": config["train"]["threads"] or torch.get_num_threads(), "platform": platform.platform()},
         "config": config, **(extra or {}),
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
