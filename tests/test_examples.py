@@ -28,7 +28,7 @@ def run_example(script, tmp_path, *args, timeout=600):
 
 
 def test_point_mass_example(tmp_path):
-    run_example("point_mass.py", tmp_path)
+    assert run_example("point_mass.py", tmp_path)["env_steps"] == 2 * 50
 
 
 def test_gym_example_with_user_demonstrations(tmp_path):
@@ -43,10 +43,11 @@ def test_gym_example_with_user_demonstrations(tmp_path):
         obs = torch.cat([traj["observation"], traj["next", "observation"][-1:]])
         episodes.append({"observation": obs})
     save_demos(demos_from_arrays(episodes, env_id="gym/Hopper-v5"), tmp_path / "demos")
-    run_example("gym_mujoco.py", tmp_path, "--env", "gym/Hopper-v5", f"train.demos={tmp_path / 'demos'}")
+    summary = run_example("gym_mujoco.py", tmp_path, "--env", "gym/Hopper-v5", f"train.demos={tmp_path / 'demos'}")
+    assert 2 <= summary["env_steps"] <= 2 * 1000  # Hopper episodes end on termination
 
 
 @pytest.mark.parametrize("script", ["robosuite_lift.py", "robosuite_push.py"])
 def test_robosuite_examples(tmp_path, script):
     pytest.importorskip("robosuite")
-    run_example(script, tmp_path, "train.num_demos=1")
+    assert run_example(script, tmp_path, "train.num_demos=1")["env_steps"] == 2 * 100  # horizon 100, no termination
