@@ -3,7 +3,7 @@
 Inverse reinforcement learning from observation-only demonstrations with a latent world model,
 an adversarial transition reward, a Q-ensemble, a multi-step policy and a latent MPPI planner.
 """
-from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, MPAIL2Config, PlannerConfig
+from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
 from torchrl_mpail2.modules import (
     LatentDynamics,
     MPAIL2Modules,
@@ -25,8 +25,16 @@ from torchrl_mpail2.trainers import MPAIL2Updater
 
 __version__ = "0.1.0.dev0"
 
+
+def __getattr__(name):
+    # the training loop pulls in the env and data stacks: import it on first use
+    if name in ("ExperimentConfig", "MPAIL2Trainer"):
+        from torchrl_mpail2 import trainers
+        return getattr(trainers, name)
+    raise AttributeError(f"module 'torchrl_mpail2' has no attribute {name!r}")
+
 __all__ = [
-    "ConfigError", "LossConfig", "ModelConfig", "MPAIL2Config", "PlannerConfig",
+    "ConfigError", "LossConfig", "ModelConfig", "PlannerConfig", "ExperimentConfig", "MPAIL2Trainer",
     "LatentDynamics", "MPAIL2Modules", "MultiStepPolicy", "ObservationEncoder", "QEnsemble", "TransitionReward",
     "make_mpail2_modules", "AdversarialRewardLoss", "JEPDynamicsLoss", "LambdaReturnValueLoss", "MPAIL2Loss",
     "MultiStepActorLoss", "LatentMPPIPlanner", "LatentWorldModelEnv", "MPAIL2Updater",

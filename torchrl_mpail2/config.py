@@ -6,7 +6,7 @@ factories in :mod:`torchrl_mpail2.modules.factory` compute them from the specs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 
 class ConfigError(ValueError):
@@ -150,12 +150,3 @@ class PlannerConfig:
         if self.policy_fraction == 0:
             return 0
         return min(self.num_candidates, max(1, round(self.policy_fraction * self.num_candidates)))
-
-
-@dataclass
-class MPAIL2Config:
-    """Everything that defines an MPAIL2 agent (networks, losses, planner)."""
-
-    model: ModelConfig = field(default_factory=ModelConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
