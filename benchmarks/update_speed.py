@@ -4,7 +4,8 @@ Each (configuration, variant) runs in its own fresh process, the variants interl
 because the malloc setting of :func:`~torchrl_mpail2.trainers.update.retain_freed_memory` is process-wide.
 Variants: ``initial`` (the code before the speed work, see ``_reference.py``), ``optimised`` (the package
 as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False``), ``optimised_bf16_stop_gradient``
-(the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes under bf16 autocast).
+(the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes and the value target's
+imagined rollout under bf16 autocast).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2

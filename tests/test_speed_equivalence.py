@@ -29,6 +29,15 @@ from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
 PLANNER = dict(num_candidates=64, num_elites=8, iterations=3, temperature=0.5, policy_fraction=0.1)
 
 
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """Tiny tensors: one thread is fastest, and stays fast when other jobs load the machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 # ---- planner --------------------------------------------------------------------------------------
 def reference_plan(m, cfg: PlannerConfig, obs, generator, prev_mean=None, deterministic=True, temperature=None):
     """Algorithm 2 with loops; returns ``(action [B, A], plan [B, H, A])``."""
@@ -259,3 +268,22 @@ def test_bf16_stop_gradient_is_opt_in_and_close():
     assert (z16 - z32).abs().max() < 0.1
     with torch.enable_grad():  # latents that carry gradients are never computed in bf16
         torch.testing.assert_close(loss.encode(td), m.encoder.encode(td), atol=1e-6, rtol=1e-5)
+
+
+def test_bf16_value_target_is_close_and_gradient_paths_stay_fp32():
+    from torchrl_mpail2.objectives._imagination import stop_gradient_precision
+    m, td = _update_case(contiguous=True, images=False)
+    loss = MPAIL2Loss(m)
+    z, z_next = (x.reshape(-1, 16) for x in loss.replay_latents(td))
+    torch.manual_seed(3)
+    y32, _ = loss.value_loss.target(z, z_next)
+    with stop_gradient_precision(torch.bfloat16):
+        torch.manual_seed(3)
+        y16, _ = loss.value_loss.target(z, z_next)
+        torch.manual_seed(4)
+        actor16 = loss.actor_loss(td, latents=(z, z_next))["loss_actor"]
+    torch.manual_seed(4)
+    actor32 = loss.actor_loss(td, latents=(z, z_next))["loss_actor"]
+    assert y16.dtype == torch.float32 and not torch.equal(y16, y32)
+    assert (y16 - y32).abs().max() < 0.05 * y32.abs().max()
+    assert torch.equal(actor16, actor32)  # returns with gradients ignore the context

@@ -6,7 +6,8 @@ frozen parameters, gradient through the actions).
 from __future__ import annotations
 
 from collections.abc import Callable
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
+from contextvars import ContextVar
 
 import torch
 from torch import Tensor, nn
@@ -19,6 +20,19 @@ from torchrl_mpail2.modules.value import QEnsembleNet
 
 #: Heads drawn from the ensemble for a target or an objective (as in TD-MPC2, which the paper builds on).
 HEADS_PER_ESTIMATE = 2
+
+_stop_gradient_dtype: ContextVar[torch.dtype | None] = ContextVar("stop_gradient_dtype", default=None)
+
+
+@contextmanager
+def stop_gradient_precision(dtype: torch.dtype | None):
+    """Within the context, imagined returns computed with gradients disabled (the value target) run under
+    autocast to ``dtype`` (``None``: float32). Returns computed with gradients (the actor's) are unaffected."""
+    token = _stop_gradient_dtype.set(dtype)
+    try:
+        yield
+    finally:
+        _stop_gradient_dtype.reset(token)
 
 
 def draw_heads(num_q: int, device: torch.device) -> Tensor:
@@ -67,14 +81,19 @@ def imagined_lambda_return(
         q_estimate (Callable): ``(z [H+1, M, Z], a [H+1, M, A]) -> [H+1, M]``.
 
     Returns:
-        Tensor: ``G`` of shape ``[M]``.
+        Tensor: ``G`` of shape ``[M]`` (float32, also under :func:`stop_gradient_precision`).
     """
-    latents = rollout_latents(dynamics, z0, plan)
-    r = chain_rewards(reward, latents)
-    last_action = policy(latents[-1])[0][..., 0, :]
-    actions = torch.cat([plan.transpose(0, 1), last_action.unsqueeze(0)], 0)
-    q = q_estimate(latents, actions)
-    return lambda_return(r.transpose(0, 1), q.transpose(0, 1), gamma, lmbda)
+    dtype = None if torch.is_grad_enabled() else _stop_gradient_dtype.get()
+    low_precision = torch.autocast(z0.device.type, dtype=dtype) if dtype is not None else nullcontext()
+    with low_precision:
+        latents = rollout_latents(dynamics, z0, plan)
+        r = chain_rewards(reward, latents)
+    # sampled in float32 in any case, so that both precisions draw the same random numbers
+    last_action = policy(latents[-1].float())[0][..., 0, :]
+    with low_precision:
+        actions = torch.cat([plan.transpose(0, 1), last_action.unsqueeze(0)], 0)
+        q = q_estimate(latents, actions)
+    return lambda_return(r.transpose(0, 1).float(), q.transpose(0, 1).float(), gamma, lmbda)
 
 
 @contextmanager

@@ -9,6 +9,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
 from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives._imagination import stop_gradient_precision
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 
 # glibc mallopt parameters (malloc.h)
@@ -45,9 +46,10 @@ class MPAIL2Updater:
 
     Keyword Args:
         retain_memory (bool): call :func:`retain_freed_memory` (process-wide; Linux/glibc only). Defaults to True.
-        bf16_stop_gradient (bool): encode the stop-gradient latents (the dynamics loss's targets, the replay and
-            expert latents of the other stages) under bfloat16 autocast: about twice as fast with cameras, but the
-            latents move by about 1e-2. Defaults to False (float32, as the paper).
+        bf16_stop_gradient (bool): run the stop-gradient computations under bfloat16 autocast: the encodes of the
+            dynamics loss's targets and of the replay and expert latents, and the value target's imagined rollout.
+            Faster (mostly with cameras), but latents and targets move by about 1e-2 (relative). Everything that
+            carries gradients stays in float32. Defaults to False (float32 throughout).
 
     Examples:
         >>> from torchrl_mpail2.config import ModelConfig
@@ -70,6 +72,7 @@ class MPAIL2Updater:
         for module in loss.modules():
             if isinstance(module, MPAIL2LossBase):
                 module.bf16_stop_gradient = bf16_stop_gradient
+        self.target_dtype = torch.bfloat16 if bf16_stop_gradient else None
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.max_grad_norm: dict[str, float | None] = {}
         for stage, groups in loss.param_groups().items():
@@ -114,7 +117,8 @@ class MPAIL2Updater:
         out = loss.reward_loss(tensordict, latents=latents, expert_latents=expert_latents)
         self._step("reward", out["loss_reward"])
         metrics.update(out)
-        out = loss.value_loss(tensordict, latents=latents)
+        with stop_gradient_precision(self.target_dtype):
+            out = loss.value_loss(tensordict, latents=latents)
         self._step("value", out["loss_value"])
         self.target_updater.step()
         metrics.update(out)
