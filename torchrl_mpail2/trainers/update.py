@@ -105,18 +105,19 @@ class MPAIL2Updater:
         Returns:
             TensorDict: every ``loss_*`` term and diagnostic, detached.
         """
-        loss = self.loss
-        metrics = loss.dynamics_loss(tensordict)
+        metrics = self.loss.dynamics_loss(tensordict)
         self._step("dynamics", metrics["loss_dynamics"])
         # The encoder changes only in the dynamics stage, so latents encoded now are exactly
         # what the reward, value and actor stages would each encode.
-        if policy_tensordict is not None:
-            tensordict = policy_tensordict
+        metrics.update(self._reward_value_actor(policy_tensordict if policy_tensordict is not None else tensordict))
+        return metrics.apply(lambda x: x.detach())
+
+    def _reward_value_actor(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """The reward, value (+ Polyak) and actor (+ alpha) stages on stop-gradient latents of one batch."""
+        loss = self.loss
         latents = loss.replay_latents(tensordict)
-        expert_latents = loss.expert_latents(tensordict)
-        out = loss.reward_loss(tensordict, latents=latents, expert_latents=expert_latents)
-        self._step("reward", out["loss_reward"])
-        metrics.update(out)
+        metrics = loss.reward_loss(tensordict, latents=latents, expert_latents=loss.expert_latents(tensordict))
+        self._step("reward", metrics["loss_reward"])
         with stop_gradient_precision(self.target_dtype):
             out = loss.value_loss(tensordict, latents=latents)
         self._step("value", out["loss_value"])
@@ -127,7 +128,7 @@ class MPAIL2Updater:
         self._step("alpha", out["loss_alpha"])
         metrics.update(out)
         metrics.set("nonfinite_skips", torch.tensor(float(sum(self.skipped.values()))))
-        return metrics.apply(lambda x: x.detach())
+        return metrics
 
     def state_dict(self) -> dict:
         return {"optimizers": {k: o.state_dict() for k, o in self.optimizers.items()}, "skipped": dict(self.skipped)}
