@@ -37,6 +37,8 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
+from torchrl_mpail2.modules.factory import NON_OBSERVATION_KEYS  # keys of a spec that are not task observations
+
 __all__ = [
     "DemoFormatError",
     "check_observation_spec",
@@ -55,8 +57,6 @@ OBSERVATIONS_DIR = "observations"
 EPISODE_KEY = "episode"
 STEP_KEY = "step"
 INDEX_KEYS = (EPISODE_KEY, STEP_KEY)
-#: Keys of an env's observation spec that are not observations of the task.
-NON_OBSERVATION_KEYS = frozenset({"success", "step_count", "is_init", "episode_task_return"})
 NOT_STORED_NOTE = (
     "Observation-only demonstrations: actions and rewards are not stored. "
     "Per-episode task_return is kept for reporting only and must not be used for learning."

@@ -242,8 +242,7 @@ class MPAIL2Trainer:
 
     def _store(self, episode: TensorDict) -> TensorDict:
         episode = episode[0][episode[0].get(("collector", "mask"))]
-        keep = [k for k in episode.keys(True, True) if k not in (("collector", "mask"),)]
-        episode = episode.select(*keep)
+        episode = episode.exclude(("collector", "mask"))
         self.replay.extend(episode)
         if self.latest is not None:
             self.latest.empty()
