@@ -48,9 +48,25 @@ def evaluate(env, actor, episodes: int) -> list[float]:
     return returns
 
 
+def _save(out: Path, env_id: str, obs_dim: int, actor, summary: dict) -> None:
+    """Writes the actor and its summary atomically (temporary file, then rename)."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".pt.tmp")
+    torch.save({"env": env_id, "obs_dim": obs_dim, "hidden": HIDDEN, "actor": actor.state_dict(), "summary": summary}, tmp)
+    tmp.replace(out)
+    tmp_json = out.with_suffix(".json.tmp")
+    tmp_json.write_text(json.dumps(summary, indent=2))
+    tmp_json.replace(out.with_suffix(".json"))
+
+
 def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 5000, batch_size: int = 256,
-              eval_episodes: int = 10, progress: bool = True) -> dict:
-    """Trains a SAC expert on ``gym/<env_id>`` and saves its actor; returns a summary (also written as JSON)."""
+              eval_episodes: int = 10, progress: bool = True, save_every: int = 25_000) -> dict:
+    """Trains a SAC expert on ``gym/<env_id>`` and saves its actor; returns a summary (also written as JSON).
+
+    Every ``save_every`` frames the current actor is saved (marked ``"finished": false``, with the mean of the
+    last 10 training episodes' returns), so a run that is stopped early still leaves usable weights.
+    """
     from torchrl_mpail2.envs import make_env
 
     torch.manual_seed(seed)
@@ -84,17 +100,20 @@ def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 
                 optim.step()
                 target.step()
         bar.update(batch.numel())
-        if episode_returns:
-            bar.set_postfix(ret=f"{sum(episode_returns[-10:]) / len(episode_returns[-10:]):.0f}")
+        recent = episode_returns[-10:]
+        if recent:
+            bar.set_postfix(ret=f"{sum(recent) / len(recent):.0f}")
+        if save_every and done_frames % save_every < batch.numel() and recent:
+            _save(out, env_id, obs_dim, actor, {"env": env_id, "frames": done_frames, "seed": seed, "finished": False,
+                                                 "train_seconds": time.perf_counter() - start,
+                                                 "train_mean_return_last10": sum(recent) / len(recent)})
     bar.close()
     collector.shutdown()
     returns = evaluate(make_env(f"gym/{env_id}", seed=seed + 10_000), actor, eval_episodes)
-    summary = {"env": env_id, "frames": frames, "seed": seed, "train_seconds": time.perf_counter() - start,
+    summary = {"env": env_id, "frames": done_frames, "seed": seed, "finished": True,
+               "train_seconds": time.perf_counter() - start, "threads": torch.get_num_threads(),
                "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns)}
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"env": env_id, "obs_dim": obs_dim, "hidden": HIDDEN, "actor": actor.state_dict(), "summary": summary}, out)
-    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    _save(out, env_id, obs_dim, actor, summary)
     return summary
 
 
@@ -129,7 +148,10 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--warmup", type=int, default=5000)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     args = p.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     out = args.out or ASSET_DIR / f"{args.env}.pt"
     summary = train_sac(args.env, args.frames, out, seed=args.seed, warmup=args.warmup)
     print(json.dumps(summary, indent=2))
