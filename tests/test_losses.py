@@ -51,6 +51,31 @@ def test_reward_loss_leaves_encoder_untouched_and_uses_gp():
     assert not out["grad_penalty"].requires_grad and not out["reward_gap"].requires_grad
 
 
+def test_reward_scale_tracks_the_critic_spread_and_divides_what_consumers_see():
+    torch.manual_seed(0)
+    m = tiny_modules()
+    with torch.no_grad():
+        m.reward.module.net[-1].weight.mul_(300.0)  # a critic on the scale a weak gradient penalty lets it reach
+    net, td = m.reward.module, replay_batch()
+    paper = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=0.1)  # scale_momentum=None: the paper's raw critic
+    paper(td)
+    assert net.reward_scale.item() == 1.0
+    loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=0.1, scale_momentum=0.9)
+    (z, z_next), (ze, ze_next) = loss.replay_latents(td), loss.expert_latents(td)
+    pooled = torch.cat([net.critic(z, z_next).flatten(), net.critic(ze, ze_next).flatten()])
+    for _ in range(3):  # same batch, no optimiser step: the bias-corrected running mean equals the batch std
+        out = loss(td)
+    assert pooled.std().item() > 10.0
+    assert net.reward_scale.item() == pytest.approx(pooled.std().item(), rel=1e-4)
+    assert out["reward_scale"].item() == pytest.approx(net.reward_scale.item())
+    assert torch.allclose(net(z, z_next), net.critic(z, z_next) / net.reward_scale, rtol=1e-5)
+    h_now, h_next = net.project(z)
+    assert torch.allclose(net.from_projection(h_now, net.project(z_next)[1]), net(z, z_next), rtol=1e-4, atol=1e-5)
+    assert net(torch.cat([z, ze]), torch.cat([z_next, ze_next])).std().item() == pytest.approx(1.0, rel=1e-3)
+    with pytest.raises(ValueError, match="scale_momentum"):
+        AdversarialRewardLoss(m.encoder, m.reward, scale_momentum=1.0)
+
+
 def test_value_loss_gradients_reach_only_q_and_never_the_target():
     m = tiny_modules()
     loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)

@@ -84,6 +84,9 @@ class LossConfig:
     """Temporal discount rho of the multi-step latent prediction loss (Eq. 2)."""
     gp_coef: float = 0.1
     """Gradient-penalty coefficient beta of the reward loss (Eq. 3)."""
+    reward_scale_momentum: float | None = 0.99
+    """Running-scale momentum of the learned reward seen by value, actor and planner (None: raw critic, as
+    in the paper). With beta = 0.1 the WGAN critic's outputs reach hundreds, which no Q head can follow."""
     tau: float = 0.01
     """Polyak coefficient of the target Q-ensemble."""
     init_alpha: float = 1e-3
@@ -109,6 +112,8 @@ class LossConfig:
         _check_positive(self, "init_alpha", "lr", "encoder_lr", "alpha_lr", "value_grad_clip", "policy_grad_clip")
         if self.gp_coef < 0:
             raise ConfigError(f"LossConfig.gp_coef must be >= 0, got {self.gp_coef}")
+        if self.reward_scale_momentum is not None and not 0.0 <= self.reward_scale_momentum < 1.0:
+            raise ConfigError(f"LossConfig.reward_scale_momentum must be in [0, 1) or None, got {self.reward_scale_momentum}")
 
 
 @dataclass

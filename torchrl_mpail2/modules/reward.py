@@ -17,6 +17,11 @@ class RewardNet(nn.Module):
     The first Linear acts on ``[z, z']``; it is applied as ``W_z z + W_{z'} z' + b`` so that a caller
     scoring a chain of latents can project each latent once (:meth:`project` / :meth:`from_projection`).
 
+    Two outputs: :meth:`critic` is the raw WGAN critic (what the reward loss and its gradient penalty
+    see); :meth:`forward` and :meth:`from_projection` give the reward the value, the actor and the planner
+    use, the critic divided by ``reward_scale`` (a buffer, 1 unless the reward loss keeps it as a running
+    scale of the critic's outputs; see :class:`~torchrl_mpail2.objectives.AdversarialRewardLoss`).
+
     Args:
         latent_dim (int): ``Z`` of the full latent.
         hidden_dims (Sequence[int]): hidden widths.
@@ -34,6 +39,21 @@ class RewardNet(nn.Module):
         in_dim = latent_dim if latent_index is None else len(latent_index)
         self.in_dim = in_dim
         self.net = mlp(2 * in_dim, hidden_dims, 1, layer_norm=False, out_bias=False)
+        self.register_buffer("reward_scale", torch.ones(()))
+        self.register_buffer("scale_ema", torch.zeros(()))
+        self.register_buffer("scale_updates", torch.zeros((), dtype=torch.long))
+
+    @torch.no_grad()
+    def track_scale(self, scores: Tensor, momentum: float) -> None:
+        """Sets ``reward_scale`` to a bias-corrected running mean of the standard deviation of ``scores``.
+
+        ``scores`` are raw critic outputs (expert and replayed transitions pooled); the scale is floored
+        at ``1e-3``. With ``momentum`` m the running mean forgets with time constant ``1 / (1 - m)`` updates.
+        """
+        self.scale_updates += 1
+        self.scale_ema.lerp_(scores.detach().float().std(), 1.0 - momentum)
+        corrected = self.scale_ema / (1.0 - momentum ** self.scale_updates.item())
+        self.reward_scale.copy_(corrected.clamp_min(1e-3))
 
     def _select(self, z: Tensor) -> Tensor:
         check_last_dim("reward input latent", z, self.latent_dim)
@@ -47,15 +67,19 @@ class RewardNet(nn.Module):
         return F.linear(z, w_now, first.bias), F.linear(z, w_next)
 
     def from_projection(self, h_now: Tensor, h_next: Tensor) -> Tensor:
-        """Finishes the critic from ``project(z)[0] + project(z')[1]`` -> ``[*B, 1]``."""
-        return self.net[1:](h_now + h_next)
+        """Finishes the (scaled) reward from ``project(z)[0] + project(z')[1]`` -> ``[*B, 1]``."""
+        return self.net[1:](h_now + h_next) / self.reward_scale.to(h_now.dtype)
 
-    def forward(self, z: Tensor, z_next: Tensor) -> Tensor:
-        """``z, z' [*B, Z]`` -> ``r [*B, 1]``."""
+    def critic(self, z: Tensor, z_next: Tensor) -> Tensor:
+        """Raw critic ``z, z' [*B, Z]`` -> ``[*B, 1]`` (the quantity the WGAN-GP loss trains)."""
         return self.net(torch.cat([self._select(z), self._select(z_next)], dim=-1))
 
+    def forward(self, z: Tensor, z_next: Tensor) -> Tensor:
+        """Reward ``z, z' [*B, Z]`` -> ``r [*B, 1]``: the critic over ``reward_scale``."""
+        return self.critic(z, z_next) / self.reward_scale.to(z.dtype)
+
     def score_pairs(self, x: Tensor) -> Tensor:
-        """Scores concatenated, already selected pairs ``[*B, 2 * in_dim]`` (for the gradient penalty)."""
+        """Raw critic of concatenated, already selected pairs ``[*B, 2 * in_dim]`` (for the gradient penalty)."""
         return self.net(x)
 
 

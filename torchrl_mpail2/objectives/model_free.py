@@ -118,7 +118,8 @@ class DACLoss(MPAIL2LossBase):
         self.cfg = cfg
         self.__dict__["components"] = modules
         m = modules
-        self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef)
+        self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef,
+                                                 scale_momentum=cfg.reward_scale_momentum)
         self.actor_loss = ModelFreeActorLoss(m.encoder, m.value, m.policy, init_alpha=cfg.init_alpha,
                                              target_entropy=cfg.target_entropy_per_step)
         self.value_loss = ModelFreeValueLoss(m.encoder, m.reward, m.value, m.policy, self.actor_loss, gamma=cfg.gamma,

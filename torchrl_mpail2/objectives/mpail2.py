@@ -53,7 +53,8 @@ class MPAIL2Loss(MPAIL2LossBase):
         self.__dict__["components"] = modules
         m = modules
         self.dynamics_loss = JEPDynamicsLoss(m.encoder, m.dynamics, rho=cfg.rho)
-        self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef)
+        self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef,
+                                                 scale_momentum=cfg.reward_scale_momentum)
         self.value_loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                                 lmbda=cfg.lmbda, mask_terminal=cfg.mask_terminal)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,

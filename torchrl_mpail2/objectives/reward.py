@@ -27,19 +27,26 @@ class AdversarialRewardLoss(MPAIL2LossBase):
 
     Keyword Args:
         gp_coef (float): :math:`\beta` (Table 4: 0.1).
+        scale_momentum (float, optional): when set, each call also updates the reward network's
+            ``reward_scale`` (a running standard deviation of the critic over the batch's expert and replayed
+            transitions, see :meth:`RewardNet.track_scale`), so that the value, the actor and the planner see
+            rewards of about unit scale whatever the critic's. ``None`` (the paper) leaves the scale at 1.
 
     Returns: ``loss_reward`` and detached diagnostics ``reward_expert``, ``reward_agent``, ``reward_gap``
-    (expert minus agent), ``grad_penalty`` and ``expert_accuracy`` (share of paired samples where the
-    expert transition scores higher).
+    (expert minus agent, raw critic), ``grad_penalty``, ``expert_accuracy`` (share of paired samples where the
+    expert transition scores higher) and ``reward_scale``.
     """
 
     reward_network: TransitionReward
 
     def __init__(self, encoder_network: ObservationEncoder, reward_network: TransitionReward, *, gp_coef: float = 0.1,
-                 reduction: str = "mean", generator: torch.Generator | None = None):
+                 scale_momentum: float | None = None, reduction: str = "mean", generator: torch.Generator | None = None):
         super().__init__(encoder_network, reduction)
+        if scale_momentum is not None and not 0.0 <= scale_momentum < 1.0:
+            raise ValueError(f"scale_momentum must be in [0, 1) or None, got {scale_momentum}")
         self.reward_network = reward_network
         self.gp_coef = gp_coef
+        self.scale_momentum = scale_momentum
         self.generator = generator
 
     def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
@@ -51,19 +58,21 @@ class AdversarialRewardLoss(MPAIL2LossBase):
         z, z_next = latents if latents is not None else self.replay_latents(tensordict)
         ze, ze_next = expert_latents if expert_latents is not None else self.expert_latents(tensordict)
         net = self.reward_network.module
-        r_agent = net(z, z_next).flatten()
-        r_expert = net(ze, ze_next).flatten()
+        r_agent = net.critic(z, z_next).flatten()
+        r_expert = net.critic(ze, ze_next).flatten()
         x_agent = torch.cat([net._select(z), net._select(z_next)], -1).flatten(0, -2)
         x_expert = torch.cat([net._select(ze), net._select(ze_next)], -1).flatten(0, -2)
         n = min(x_agent.shape[0], x_expert.shape[0])
         gp = gradient_penalty(net.score_pairs, x_expert[:n], x_agent[:n], generator=self.generator)
         loss = self.reduce(r_agent) - self.reduce(r_expert) + self.gp_coef * gp
         with torch.no_grad():
+            if self.scale_momentum is not None and self.training:
+                net.track_scale(torch.cat([r_agent, r_expert]), self.scale_momentum)
             accuracy = (r_expert[:n] > r_agent[:n]).float().mean()
             return_td = TensorDict({
                 "reward_expert": r_expert.mean(), "reward_agent": r_agent.mean(),
                 "reward_gap": r_expert.mean() - r_agent.mean(), "grad_penalty": gp.detach(),
-                "expert_accuracy": accuracy,
+                "expert_accuracy": accuracy, "reward_scale": net.reward_scale.clone(),
             }, [])
         return_td.set("loss_reward", loss)
         return return_td

@@ -6,8 +6,10 @@ from torchrl_mpail2.trainers.config import ExperimentConfig, TrainConfig
 
 
 def _paper(env: str, obs: str = "state") -> ExperimentConfig:
+    """Table 4 as written: raw critic rewards (no running reward scale)."""
     latent = 256 if obs == "state" else 512  # Table 4: 512, 256 for state observations
-    return ExperimentConfig(train=TrainConfig(env=env, obs=obs), model=ModelConfig(latent_dim=latent))
+    return ExperimentConfig(train=TrainConfig(env=env, obs=obs), model=ModelConfig(latent_dim=latent),
+                            loss=LossConfig(reward_scale_momentum=None))
 
 
 def _point_mass() -> ExperimentConfig:
