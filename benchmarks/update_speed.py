@@ -5,7 +5,9 @@ because the malloc setting of :func:`~torchrl_mpail2.trainers.update.retain_free
 Variants: ``initial`` (the code before the speed work, see ``_reference.py``), ``optimised`` (the package
 as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False``), ``optimised_bf16_stop_gradient``
 (the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes and the value target's
-imagined rollout under bf16 autocast).
+imagined rollout under bf16 autocast), ``one_transition_per_window`` and ``one_transition_per_window_bf16``
+(``LossConfig(transitions_per_window=1)``: the reward, value and actor stages on one random transition of each
+window, i.e. B transitions rather than B x T; the dynamics stage unchanged).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -27,7 +29,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
-VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient")
+VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
+            "one_transition_per_window", "one_transition_per_window_bf16")
 #: (label, callable path) timed inside one update, in the order the update runs them.
 STAGE_CALLS = (("dynamics loss", "loss.dynamics_loss.forward"), ("latents (replay + expert)", "loss.replay_latents"),
                ("latents (replay + expert)", "loss.expert_latents"), ("reward loss", "loss.reward_loss.forward"),
@@ -58,11 +61,12 @@ def _instrument(updater, record: dict) -> None:
 
 
 def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int, profile: bool) -> dict:
-    from torchrl_mpail2 import MPAIL2Loss, MPAIL2Updater
+    from torchrl_mpail2 import LossConfig, MPAIL2Loss, MPAIL2Updater
 
     setting = SETTINGS[setting_name]
     modules = setting.modules()
-    loss = MPAIL2Loss(modules)
+    # one_transition_per_window*: reward, value and actor on one random transition of each window (B of them)
+    loss = MPAIL2Loss(modules, LossConfig(transitions_per_window=1 if variant.startswith("one_transition") else None))
     td = replay_batch(setting, batch, steps)
     if variant == "initial":
         from _reference import initial_behaviour
@@ -72,7 +76,7 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
         context = contextlib.nullcontext()
     with context:
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
-                                bf16_stop_gradient=variant == "optimised_bf16_stop_gradient")
+                                bf16_stop_gradient=variant.endswith("bf16_stop_gradient") or variant.endswith("_bf16"))
         updater.update(td)  # warm-up: optimiser state, allocator
         totals, stages = [], []
         record: dict = {}

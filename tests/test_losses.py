@@ -214,3 +214,36 @@ def test_model_free_losses_isolate_their_gradients():
     assert _has_grad(m.policy) and _no_grad(m.value) and _no_grad(m.encoder)
     with pytest.raises(ValueError, match="single-step policy"):
         DACLoss(tiny_modules(horizon=3))
+
+
+def test_window_transitions_are_distinct_steps_of_their_own_window():
+    from torchrl_mpail2.objectives._base import sample_window_transitions
+    rows = torch.arange(6).unsqueeze(-1).expand(6, 5)
+    td = TensorDict({"row": rows, "t": torch.arange(5).expand(6, 5), ("next", "t"): torch.arange(5).expand(6, 5) + 1},
+                    [6, 5])
+    sub = sample_window_transitions(td, 3)
+    assert sub.shape == (6, 3)
+    assert torch.equal(sub["row"], rows[:, :3])  # each sample stays in its window
+    assert all(len(set(r.tolist())) == 3 for r in sub["t"])  # distinct steps
+    assert torch.equal(sub["next", "t"], sub["t"] + 1)  # next observations follow their step
+    assert sample_window_transitions(td, None) is td and sample_window_transitions(td, 5) is td
+    with pytest.raises(ValueError, match="per_window"):
+        sample_window_transitions(td, 0)
+
+
+def test_updater_feeds_reward_value_actor_the_sampled_transitions_and_dynamics_whole_windows():
+    torch.manual_seed(0)
+    m = tiny_modules()
+    loss = MPAIL2Loss(m, LossConfig(transitions_per_window=1))
+    seen = {}
+    for name in ("dynamics_loss", "reward_loss", "value_loss", "actor_loss"):
+        sub = getattr(loss, name)
+        original = sub.forward
+
+        def spy(td, *args, _name=name, _original=original, **kwargs):
+            seen[_name] = tuple(td.shape)
+            return _original(td, *args, **kwargs)
+        sub.forward = spy
+    metrics = MPAIL2Updater(loss, retain_memory=False).update(replay_batch(batch=4, steps=3))
+    assert seen == {"dynamics_loss": (4, 3), "reward_loss": (4, 1), "value_loss": (4, 1), "actor_loss": (4, 1)}
+    assert all(torch.isfinite(v) for k, v in metrics.items() if k.startswith("loss_"))

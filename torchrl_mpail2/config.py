@@ -87,6 +87,9 @@ class LossConfig:
     reward_scale_momentum: float | None = 0.99
     """Running-scale momentum of the learned reward seen by value, actor and planner (None: raw critic, as
     in the paper). With beta = 0.1 the WGAN critic's outputs reach hundreds, which no Q head can follow."""
+    transitions_per_window: int | None = None
+    """Random transitions of each replayed ``T``-step window that the reward, value and actor objectives use
+    (None: all of them). The dynamics objective always uses whole windows. Their cost scales with it."""
     tau: float = 0.01
     """Polyak coefficient of the target Q-ensemble."""
     init_alpha: float = 1e-3
@@ -112,6 +115,8 @@ class LossConfig:
         _check_positive(self, "init_alpha", "lr", "encoder_lr", "alpha_lr", "value_grad_clip", "policy_grad_clip")
         if self.gp_coef < 0:
             raise ConfigError(f"LossConfig.gp_coef must be >= 0, got {self.gp_coef}")
+        if self.transitions_per_window is not None and self.transitions_per_window < 1:
+            raise ConfigError(f"LossConfig.transitions_per_window must be >= 1 or None, got {self.transitions_per_window}")
         if self.reward_scale_momentum is not None and not 0.0 <= self.reward_scale_momentum < 1.0:
             raise ConfigError(f"LossConfig.reward_scale_momentum must be in [0, 1) or None, got {self.reward_scale_momentum}")
 

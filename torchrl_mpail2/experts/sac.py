@@ -83,7 +83,7 @@ def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 
     target = SoftUpdate(loss, tau=0.005)
     optim = torch.optim.Adam(loss.parameters(), lr=3e-4)
     replay = TensorDictReplayBuffer(storage=LazyTensorStorage(frames), batch_size=batch_size)
-    collector = Collector(env, actor, frames_per_batch=1000, total_frames=frames, init_random_frames=warmup)
+    collector = Collector(env, actor, frames_per_batch=min(1000, frames), total_frames=frames, init_random_frames=warmup)
     start, done_frames, episode_returns = time.perf_counter(), 0, []
     bar = tqdm(total=frames, disable=not progress, desc=f"SAC {env_id}")
     for batch in collector:
@@ -117,6 +117,19 @@ def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 
     return summary
 
 
+def evaluate_saved(env_id: str, path: Path, episodes: int = 10, seed: int = 0) -> dict:
+    """Evaluates a saved expert (e.g. one whose training was stopped early) and records its returns in the file."""
+    from torchrl_mpail2.envs import make_env
+
+    env = make_env(f"gym/{env_id}", seed=seed + 10_000)
+    expert = SACExpert(path, env.action_spec)
+    returns = evaluate(env, expert.actor, episodes)
+    summary = {**expert.summary, "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns),
+               "eval_episodes": episodes}
+    _save(path, env_id, expert.obs_dim, expert.actor, summary)
+    return summary
+
+
 class SACExpert:
     """Deterministic (mean) action of a trained SAC actor; reads ``"observation"``, writes ``"action"``.
 
@@ -131,7 +144,8 @@ class SACExpert:
             raise FileNotFoundError(f"no expert weights at {path}; train them with "
                                     f"`python -m torchrl_mpail2.experts.sac --env {path.stem} --out {path}`")
         state = torch.load(path, map_location="cpu", weights_only=False)
-        self.actor = make_actor(state["obs_dim"], action_spec)
+        self.obs_dim = state["obs_dim"]
+        self.actor = make_actor(self.obs_dim, action_spec)
         self.actor.load_state_dict(state["actor"])
         self.summary = state["summary"]
 
@@ -149,11 +163,17 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--warmup", type=int, default=5000)
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--evaluate", action="store_true",
+                   help="do not train: evaluate the saved expert at --out and record its returns there")
+    p.add_argument("--episodes", type=int, default=10, help="evaluation episodes")
     args = p.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     out = args.out or ASSET_DIR / f"{args.env}.pt"
-    summary = train_sac(args.env, args.frames, out, seed=args.seed, warmup=args.warmup)
+    if args.evaluate:
+        summary = evaluate_saved(args.env, out, args.episodes, seed=args.seed)
+    else:
+        summary = train_sac(args.env, args.frames, out, seed=args.seed, warmup=args.warmup, eval_episodes=args.episodes)
     print(json.dumps(summary, indent=2))
     return summary
 

@@ -15,6 +15,28 @@ from torchrl_mpail2.modules.encoder import ObservationEncoder
 _IMAGE_DIMS = 4
 
 
+def sample_window_transitions(tensordict: TensorDictBase, per_window: int | None) -> TensorDictBase:
+    """``per_window`` distinct random transitions of each ``[B, T]`` window -> ``[B, per_window]``.
+
+    The reward, value and actor objectives are expectations over single transitions; drawing a few of each
+    window's ``T`` correlated transitions cuts their cost by ``T / per_window`` while the dynamics loss keeps
+    whole windows. ``None`` (or ``per_window >= T``, or a batch without a time dimension) returns the batch as is.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict({"t": torch.arange(4).expand(3, 4)}, [3, 4])
+        >>> sample_window_transitions(td, 2).shape
+        torch.Size([3, 2])
+    """
+    if per_window is None or tensordict.ndim < 2 or per_window >= tensordict.shape[1]:
+        return tensordict
+    if per_window < 1:
+        raise ValueError(f"per_window must be >= 1, got {per_window}")
+    batch, steps = tensordict.shape[:2]
+    index = torch.rand(batch, steps, device=tensordict.device).argsort(-1)[:, :per_window]
+    return tensordict[torch.arange(batch, device=tensordict.device).unsqueeze(-1), index]
+
+
 class MPAIL2LossBase(LossModule):
     """Base of the MPAIL2 losses.
 

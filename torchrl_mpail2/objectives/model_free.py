@@ -16,7 +16,7 @@ from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
 from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen
 
 
@@ -140,6 +140,7 @@ class DACLoss(MPAIL2LossBase):
         }
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        tensordict = sample_window_transitions(tensordict, self.cfg.transitions_per_window)
         latents = self.replay_latents(tensordict)
         out = self.reward_loss(tensordict, latents=latents)
         out.update(self.value_loss(tensordict, latents=latents))

@@ -6,7 +6,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from torchrl_mpail2.config import LossConfig
 from torchrl_mpail2.modules.factory import MPAIL2Modules
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
 from torchrl_mpail2.objectives.actor import MultiStepActorLoss
 from torchrl_mpail2.objectives.dynamics import JEPDynamicsLoss
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
@@ -89,6 +89,7 @@ class MPAIL2Loss(MPAIL2LossBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         out = self.dynamics_loss(tensordict)
+        tensordict = sample_window_transitions(tensordict, self.cfg.transitions_per_window)
         latents = self.replay_latents(tensordict)
         out.update(self.reward_loss(tensordict, latents=latents))
         out.update(self.value_loss(tensordict, latents=latents))

@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
 from torchrl_mpail2.objectives._imagination import stop_gradient_precision
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 
@@ -113,8 +113,10 @@ class MPAIL2Updater:
         return metrics.apply(lambda x: x.detach())
 
     def _reward_value_actor(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """The reward, value (+ Polyak) and actor (+ alpha) stages on stop-gradient latents of one batch."""
+        """The reward, value (+ Polyak) and actor (+ alpha) stages on stop-gradient latents of one batch
+        (``cfg.transitions_per_window`` random transitions of each window)."""
         loss = self.loss
+        tensordict = sample_window_transitions(tensordict, loss.cfg.transitions_per_window)
         latents = loss.replay_latents(tensordict)
         metrics = loss.reward_loss(tensordict, latents=latents, expert_latents=loss.expert_latents(tensordict))
         self._step("reward", metrics["loss_reward"])
