@@ -173,3 +173,14 @@ def test_factory_reads_specs_and_rejects_unnormalised_actions():
         make_mpail2_modules(obs_spec, Bounded(-0.4, 0.4, (2,)), ModelConfig(**TINY))
     with pytest.raises(KeyError, match="'pixels' not in the observation spec"):
         make_mpail2_modules(obs_spec, Bounded(-1, 1, (2,)), ModelConfig(**TINY), observation_keys=["pixels"])
+
+
+def test_reward_loads_a_state_dict_from_before_the_running_scale():
+    m = tiny_modules()
+    old = {k: v for k, v in m.reward.state_dict().items() if "scale" not in k}
+    other = tiny_modules()
+    other.reward.module.reward_scale.fill_(7.0)
+    other.reward.load_state_dict(old)  # strict: the scale buffers default to the raw critic
+    assert other.reward.module.reward_scale.item() == 1.0 and other.reward.module.scale_updates.item() == 0
+    z = torch.randn(4, 16)
+    assert torch.equal(other.reward.module(z, z), m.reward.module(z, z))

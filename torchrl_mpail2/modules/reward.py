@@ -43,6 +43,12 @@ class RewardNet(nn.Module):
         self.register_buffer("scale_ema", torch.zeros(()))
         self.register_buffer("scale_updates", torch.zeros((), dtype=torch.long))
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints written before the running scale existed: the raw critic (scale 1, no history)
+        for name in ("reward_scale", "scale_ema", "scale_updates"):
+            state_dict.setdefault(prefix + name, getattr(self, name).new_tensor(1 if name == "reward_scale" else 0))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     @torch.no_grad()
     def track_scale(self, scores: Tensor, momentum: float) -> None:
         """Sets ``reward_scale`` to a bias-corrected running mean of the standard deviation of ``scores``.
