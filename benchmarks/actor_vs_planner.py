@@ -1,0 +1,106 @@
+"""Diagnostic: how good are the policy's plans by the planner's own score, next to the plans MPPI finds?
+
+    python benchmarks/actor_vs_planner.py RUN_DIR [--checkpoint last] [--steps 500]
+
+Loads a run's checkpoint, collects start states from random-action rollouts of the run's environment, and
+scores plans with :meth:`LatentMPPIPlanner.score` (the planner's return, two Q heads): the policy's mean plan,
+the best of MPPI's final candidates and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
+a freshly initialised policy for ``--steps`` Adam steps under three objectives and scores its mean plan again:
+``actor`` (the package's actor loss: stochastic plans, lambda-return, entropy), ``deterministic_lambda`` (the mean
+plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Writes
+``docs/results/actor_vs_planner.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+import torch
+
+from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen, imagined_lambda_return
+from torchrl_mpail2.trainers import MPAIL2Trainer
+from torchrl_mpail2.trainers import checkpoint as ckpt
+from torchrl_mpail2.trainers.config import ExperimentConfig
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+OBJECTIVES = ("actor", "deterministic_lambda", "deterministic_planner")
+
+
+def _reinit(module: torch.nn.Module) -> None:
+    for sub in module.modules():
+        if sub is not module and hasattr(sub, "reset_parameters"):
+            sub.reset_parameters()
+
+
+def _objective(name: str, trainer: MPAIL2Trainer, z: torch.Tensor, heads: torch.Tensor) -> torch.Tensor:
+    m, loss = trainer.modules, trainer.loss
+    if name == "actor":
+        return loss.actor_loss(None, latents=(z, None))["loss_actor"]
+    plan = m.policy.net(z, deterministic=True)[0]
+    with frozen(m.dynamics, m.reward, m.value):
+        if name == "deterministic_lambda":
+            return -imagined_lambda_return(z, plan, m.dynamics.module, m.reward.module, ensemble_estimate(m.value.net, "mean"),
+                                           m.policy.net, loss.cfg.gamma, loss.cfg.lmbda).mean()
+        return -trainer.planner.score(z, plan.unsqueeze(1), heads).mean()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--checkpoint", default="last")
+    p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--rollouts", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args()
+    torch.manual_seed(args.seed)
+    cfg = ExperimentConfig.from_dict(json.loads((args.run_dir / "config.json").read_text()))
+    cfg.train.run_dir = tempfile.mkdtemp()
+    trainer = MPAIL2Trainer(cfg)
+    state = ckpt.read_checkpoint(args.run_dir / "checkpoints" / args.checkpoint)
+    trainer.modules.load_state_dict(state["modules"])
+    trainer.loss.load_state_dict(state["loss"])
+    m, planner = trainer.modules, trainer.planner
+    keys = m.encoder.in_keys
+    starts = torch.cat([trainer.env.rollout(cfg.train.eval_episodes * 10).select(*keys) for _ in range(args.rollouts)], 0)
+    heads = torch.arange(2)
+    with torch.no_grad():
+        z = m.encoder.encode(starts)
+
+    def policy_score() -> float:
+        with torch.no_grad():
+            return float(planner.score(z, m.policy.net(z, deterministic=True)[0].unsqueeze(1), heads).mean())
+
+    with torch.no_grad():
+        planner.reset()
+        mean, _, influence = planner._optimise(starts)
+        mppi_mean = float(planner.score(z, mean.unsqueeze(1), heads).mean())
+    result = {"run": str(args.run_dir), "checkpoint": args.checkpoint, "start_states": int(z.shape[0]),
+              "score": "planner return: sum_k gamma^k r(z_k, z_k+1) + gamma^H Q(z_H, pi(z_H)), mean over start states",
+              "policy_mean_plan": policy_score(), "mppi_final_mean_plan": mppi_mean,
+              "mppi_policy_influence": float(influence.mean()), "retrained": {}}
+    saved = {k: v.clone() for k, v in m.policy.state_dict().items()}
+    for name in OBJECTIVES:
+        m.policy.load_state_dict(saved)
+        _reinit(m.policy)
+        opt = torch.optim.Adam(m.policy.parameters(), lr=cfg.loss.lr)
+        curve = [policy_score()]
+        for step in range(args.steps):
+            batch = z[torch.randint(len(z), (cfg.train.batch_size,))]
+            loss = _objective(name, trainer, batch, heads)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(m.policy.parameters(), cfg.loss.policy_grad_clip)
+            opt.step()
+            if (step + 1) % max(1, args.steps // 5) == 0:
+                curve.append(policy_score())
+        result["retrained"][name] = {"policy_mean_plan": curve[-1], "curve": curve}
+        print(name, [round(c, 3) for c in curve], flush=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "actor_vs_planner.json").write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: v for k, v in result.items() if k != "retrained"}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
