@@ -56,9 +56,11 @@ class RewardNet(nn.Module):
         ``scores`` are raw critic outputs (expert and replayed transitions pooled); the scale is floored
         at ``1e-3``. With ``momentum`` m the running mean forgets with time constant ``1 / (1 - m)`` updates.
         """
+        if scores.numel() < 2:  # no spread to measure
+            return
         self.scale_updates += 1
         self.scale_ema.lerp_(scores.detach().float().std(), 1.0 - momentum)
-        corrected = self.scale_ema / (1.0 - momentum ** self.scale_updates.item())
+        corrected = self.scale_ema / (1.0 - torch.pow(momentum, self.scale_updates.float()))  # no host sync
         self.reward_scale.copy_(corrected.clamp_min(1e-3))
 
     def _select(self, z: Tensor) -> Tensor:
