@@ -51,3 +51,13 @@ def test_gym_example_with_user_demonstrations(tmp_path):
 def test_robosuite_examples(tmp_path, script):
     pytest.importorskip("robosuite")
     assert run_example(script, tmp_path, "train.num_demos=1")["env_steps"] == 2 * 100  # horizon 100, no termination
+
+
+def test_gym_example_records_demonstrations_from_the_committed_expert_and_caches_them(tmp_path):
+    first = run_example("gym_mujoco.py", tmp_path, "--env", "gym/Hopper-v5", "train.num_demos=1")
+    cached = list((tmp_path / "demos").iterdir())
+    assert len(cached) == 1 and "Hopper" in cached[0].name
+    header = json.loads((cached[0] / "header.json").read_text())
+    assert header["env_id"] == "gym/Hopper-v5" and len(header["episodes"]) == 1
+    assert header["episodes"][0]["task_return"] > 500  # the SAC expert, not random actions (5-54)
+    assert first["env_steps"] >= 2
