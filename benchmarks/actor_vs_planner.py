@@ -3,8 +3,8 @@
     python benchmarks/actor_vs_planner.py RUN_DIR [--checkpoint last] [--steps 500]
 
 Loads a run's checkpoint, collects start states from random-action rollouts of the run's environment, and
-scores plans with :meth:`LatentMPPIPlanner.score` (the planner's return, two Q heads): the policy's mean plan,
-the best of MPPI's final candidates and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
+scores plans with :meth:`LatentMPPIPlanner.score` (the planner's return, two Q heads): the policy's mean plan
+and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
 a freshly initialised policy for ``--steps`` Adam steps under three objectives and scores its mean plan again:
 ``actor`` (the package's actor loss: stochastic plans, lambda-return, entropy), ``deterministic_lambda`` (the mean
 plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Writes
@@ -80,9 +80,7 @@ def main() -> None:
               "score": "planner return: sum_k gamma^k r(z_k, z_k+1) + gamma^H Q(z_H, pi(z_H)), mean over start states",
               "policy_mean_plan": policy_score(), "mppi_final_mean_plan": mppi_mean,
               "mppi_policy_influence": float(influence.mean()), "retrained": {}}
-    saved = {k: v.clone() for k, v in m.policy.state_dict().items()}
     for name in OBJECTIVES:
-        m.policy.load_state_dict(saved)
         _reinit(m.policy)
         opt = torch.optim.Adam(m.policy.parameters(), lr=cfg.loss.lr)
         curve = [policy_score()]

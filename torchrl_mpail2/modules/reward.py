@@ -11,6 +11,10 @@ from torch import Tensor, nn
 from torchrl_mpail2.modules._mlp import check_last_dim, mlp
 
 
+#: Initial running-scale state of :class:`RewardNet`: the raw critic (scale 1) with no history.
+_SCALE_STATE = {"reward_scale": 1.0, "scale_ema": 0.0, "scale_updates": 0}
+
+
 class RewardNet(nn.Module):
     r"""MLP critic :math:`r_\theta(z, z')` with no LayerNorm and no output bias (Table 4, Fig. 14).
 
@@ -39,14 +43,13 @@ class RewardNet(nn.Module):
         in_dim = latent_dim if latent_index is None else len(latent_index)
         self.in_dim = in_dim
         self.net = mlp(2 * in_dim, hidden_dims, 1, layer_norm=False, out_bias=False)
-        self.register_buffer("reward_scale", torch.ones(()))
-        self.register_buffer("scale_ema", torch.zeros(()))
-        self.register_buffer("scale_updates", torch.zeros((), dtype=torch.long))
+        for name, value in _SCALE_STATE.items():
+            self.register_buffer(name, torch.tensor(value))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        # checkpoints written before the running scale existed: the raw critic (scale 1, no history)
-        for name in ("reward_scale", "scale_ema", "scale_updates"):
-            state_dict.setdefault(prefix + name, getattr(self, name).new_tensor(1 if name == "reward_scale" else 0))
+        # checkpoints written before the running scale existed load as the raw critic (scale 1, no history)
+        for name, value in _SCALE_STATE.items():
+            state_dict.setdefault(prefix + name, torch.tensor(value))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @torch.no_grad()
