@@ -34,6 +34,7 @@ def summarize(run_dir: Path, name: str, extra: dict | None = None) -> dict:
         "evaluations": [{k: e[k] for k in ("episode", "success_rate", "return")} for e in evals],
         "best_eval_success": max((e["success_rate"] for e in evals), default=None),
         "last_eval_success": evals[-1]["success_rate"] if evals else None,
+        "curve": {k: [e.get(k) for e in episodes] for k in ("episode", "success", "task_return", "reward_gap")},
         "mean_update_ms": sum(e.get("update_ms", 0) for e in episodes) / max(1, sum("update_ms" in e for e in episodes)),
         "machine": {"torch_threads": config["train"]["threads"] or torch.get_num_threads(), "platform": platform.platform()},
         "config": config, **(extra or {}),
