@@ -44,6 +44,9 @@ def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path, monkeypatch):
     records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(1, 36))
     assert any("policy_influence" in r for r in records)
+    # an episode that ends in success succeeded at some step; the paper's any-step rate is logged beside it
+    assert all(r["success"] <= r["success_any_step"] for r in records)
+    assert summary["last_eval"]["success_rate"] <= summary["last_eval"]["success_rate_any_step"]
 
 
 def test_policy_only_ablation_runs(tmp_path, monkeypatch):

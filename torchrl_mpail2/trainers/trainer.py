@@ -169,22 +169,28 @@ class MPAIL2Trainer:
     # ---- evaluation ------------------------------------------------------------------------------
     @torch.no_grad()
     def evaluate(self, episodes: int | None = None) -> dict:
-        """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return."""
+        """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return.
+
+        ``success_rate`` counts episodes whose last step is a success (the object still lifted at the end);
+        ``success_rate_any_step`` counts those that succeed at any step, the paper's definition (Appendix).
+        """
         episodes = episodes or self.cfg.train.eval_episodes
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.seed + 10_000)
         saved = self.planner.get_extra_state() if self.planner is not None else None
-        successes, returns = [], []
+        successes, successes_any, returns = [], [], []
         actor = self.actor.actor
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             for _ in range(episodes):
                 traj = env.rollout(100_000, actor, break_when_any_done=True)
                 successes.append(float(traj["next", "success"][-1].item()))
+                successes_any.append(float(traj["next", "success"].any().item()))
                 returns.append(float(traj["next", "episode_task_return"][-1].item()))
         if self.planner is not None:
             self.planner.set_extra_state(saved)
         mean_return = sum(returns) / len(returns)
         demo_return = self.demos.mean_return
-        return {"success_rate": sum(successes) / len(successes), "return": mean_return,
+        return {"success_rate": sum(successes) / len(successes),
+                "success_rate_any_step": sum(successes_any) / len(successes_any), "return": mean_return,
                 "normalized_return": mean_return / demo_return if demo_return else float("nan")}
 
     # ---- checkpoints -----------------------------------------------------------------------------
@@ -331,6 +337,7 @@ class MPAIL2Trainer:
     def _episode_record(self, episode: TensorDict) -> dict:
         record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0],
                   "success": float(episode["next", "success"][-1].item()),
+                  "success_any_step": float(episode["next", "success"].any().item()),
                   "task_return": float(episode["next", "episode_task_return"][-1].item()),
                   "random_actions": bool(self.actor.random_actions)}
         if "policy_influence" in episode.keys() and not self.actor.random_actions:
