@@ -165,3 +165,23 @@ def test_bad_observations_and_impossible_configs_are_rejected():
         planner(TensorDict({"observation": torch.full((2, 3), float("inf"))}, [2]))
     with pytest.raises(ConfigError, match="num_elites"):
         PlannerConfig(num_candidates=32, num_elites=64)
+
+
+def test_warmup_switch_reports_the_planners_statistics_per_episode():
+    from torchrl_mpail2.planners.policy_actor import WarmupSwitch
+
+    planner, _ = known_planner()
+    actor = WarmupSwitch(planner, Bounded(-1, 1, (2,)), random_actions=True)
+    actor(obs([0.0, 0.0], [0.1, 0.1], [0.2, 0.2]))
+    assert actor.pop_stats() == {}  # random warm-up steps neither plan nor count
+    actor.random_actions = False
+    elite_returns = []
+    for start in ([0.0, 0.0], [-3.0, 3.0]):
+        actor(obs(start, start, start))
+        elite_returns.append(planner.last_stats["elite_return"].item())
+    stats = actor.pop_stats()
+    assert stats["elite_return"] == pytest.approx(sum(elite_returns) / 2, rel=1e-5)
+    assert elite_returns[1] < elite_returns[0] <= 0.0  # the far start cannot reach the goal's reward
+    assert planner.cfg.std_min <= stats["plan_std"] <= planner.cfg.std_max
+    assert stats["actions_per_s"] > 0
+    assert actor.pop_stats() == {}  # reset after reading

@@ -46,6 +46,10 @@ def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path, monkeypatch):
     assert any("policy_influence" in r for r in records)
     # an episode that ends in success succeeded at some step; the paper's any-step rate is logged beside it
     assert all(r["success"] <= r["success_any_step"] for r in records)
+    planned = [r for r in records if not r["random_actions"]]
+    assert planned and all(r["actions_per_s"] > 0 and "elite_return" in r and "plan_std" in r for r in planned)
+    assert all("actions_per_s" not in r for r in records if r["random_actions"])
+    assert all(r["normalized_return"] == pytest.approx(r["task_return"] / trainer.demos.mean_return) for r in records)
     assert summary["last_eval"]["success_rate"] <= summary["last_eval"]["success_rate_any_step"]
 
 
@@ -56,7 +60,8 @@ def test_policy_only_ablation_runs(tmp_path, monkeypatch):
     summary = trainer.train()
     assert summary["episodes"] == 3 and summary["updates"] > 0
     records = [json.loads(line) for line in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
-    assert all("policy_influence" not in r for r in records)  # no planner, no influence
+    assert all("policy_influence" not in r and "elite_return" not in r for r in records)  # no planner
+    assert all(r["actions_per_s"] > 0 for r in records if not r["random_actions"])
 
 
 def test_latest_episode_ablation_trains_on_the_last_episode(tmp_path, monkeypatch):

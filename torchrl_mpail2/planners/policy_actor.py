@@ -1,6 +1,8 @@
 r"""Acting with the multi-step policy alone (the paper's [-P] ablation) and random warm-up actions."""
 from __future__ import annotations
 
+import time
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -39,7 +41,14 @@ class WarmupSwitch(TensorDictModuleBase):
     Lets one collector run the paper's random warm-up episodes and then the planner. Random steps also
     write zeros for the actor's other outputs (``extra_out_shapes``), since collectors and replay storages
     lay out their buffers from the first step.
+
+    It also keeps running sums over the wrapped actor's calls, read and reset by :meth:`pop_stats`: the time
+    spent acting and, for a planner, its ``last_stats`` (elite return, plan std), summed as tensors so that
+    acting never waits on a host sync.
     """
+
+    #: planner statistics the trainer logs (``policy_influence`` comes per step from the tensordict)
+    PLANNER_STATS = ("elite_return", "plan_std")
 
     def __init__(self, actor: TensorDictModuleBase, action_spec, random_actions: bool = False):
         super().__init__()
@@ -48,6 +57,18 @@ class WarmupSwitch(TensorDictModuleBase):
         self.random_actions = random_actions
         self.in_keys = list(actor.in_keys)
         self.out_keys = list(actor.out_keys)
+        self._sums: dict = {}
+        self._calls = self._actions = 0
+        self._seconds = 0.0
+
+    def pop_stats(self) -> dict[str, float]:
+        """Means of the planner statistics and ``actions_per_s`` since the last call (empty if nothing acted)."""
+        out = {}
+        if self._calls:
+            out = {name: float(total) / self._calls for name, total in self._sums.items()}
+            out["actions_per_s"] = self._actions / max(self._seconds, 1e-9)
+        self._sums, self._calls, self._actions, self._seconds = {}, 0, 0, 0.0
+        return out
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if self.random_actions:
@@ -57,4 +78,13 @@ class WarmupSwitch(TensorDictModuleBase):
             for key, key_shape in getattr(self.actor, "extra_out_shapes", {}).items():
                 tensordict.set(key, action.new_zeros(*shape, *key_shape))
             return tensordict
-        return self.actor(tensordict)
+        start = time.perf_counter()
+        out = self.actor(tensordict)
+        self._seconds += time.perf_counter() - start
+        self._calls += 1
+        self._actions += max(1, tensordict.batch_size.numel())
+        stats = getattr(self.actor, "last_stats", {})
+        for name in self.PLANNER_STATS:
+            if name in stats:
+                self._sums[name] = self._sums.get(name, 0) + stats[name]
+        return out

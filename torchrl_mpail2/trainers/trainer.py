@@ -342,4 +342,9 @@ class MPAIL2Trainer:
                   "random_actions": bool(self.actor.random_actions)}
         if "policy_influence" in episode.keys() and not self.actor.random_actions:
             record["policy_influence"] = float(episode["policy_influence"].mean())
+        if math.isfinite(self.demos.mean_return) and self.demos.mean_return != 0:
+            record["normalized_return"] = record["task_return"] / self.demos.mean_return
+        acting = self.actor.pop_stats()
+        if not self.actor.random_actions:
+            record.update(acting)
         return record
