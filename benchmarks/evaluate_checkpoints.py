@@ -48,7 +48,9 @@ def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None) -> di
         trainer = MPAIL2Trainer(cfg)
         for episode, path in tqdm(checkpoints, desc="checkpoints"):
             trainer.load(path, with_replay=False)
-            trainer.eval_env = None  # the same evaluation episodes for every checkpoint
+            if getattr(trainer, "eval_env", None) is not None:  # a fresh env: the same episodes for every checkpoint
+                trainer.eval_env.close()
+            trainer.eval_env = None
             torch.manual_seed(cfg.train.seed + 10_000)
             start = time.perf_counter()
             rows.append({"episode": episode, "checkpoint": path.name, **trainer.evaluate(episodes),

@@ -171,7 +171,7 @@ class MPAIL2Trainer:
     def evaluate(self, episodes: int | None = None) -> dict:
         """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return.
 
-        ``success_rate`` counts episodes whose last step is a success (the object still lifted at the end);
+        ``success_rate`` counts episodes whose last step is a success (e.g. the cube still lifted at the end);
         ``success_rate_any_step`` counts those that succeed at any step, the paper's definition (Appendix).
         """
         episodes = episodes or self.cfg.train.eval_episodes
