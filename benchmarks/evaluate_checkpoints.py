@@ -27,12 +27,9 @@ RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 
 
 def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
-    found = []
-    for path in (run_dir / "checkpoints").iterdir():
-        digits = "".join(ch for ch in path.name if ch.isdigit())
-        if path.is_dir() and digits and not path.name.startswith("."):
-            found.append((int(digits), path))
-    return sorted(found)
+    """The trainer's ``checkpoints/episode_N`` folders, by episode (temporary ``.episode_N.tmp`` ones excluded)."""
+    return sorted((int(path.name.removeprefix("episode_")), path)
+                  for path in (run_dir / "checkpoints").glob("episode_*") if path.is_dir())
 
 
 def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None) -> dict:

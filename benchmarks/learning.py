@@ -37,7 +37,8 @@ def summarize(run_dir: Path, name: str, extra: dict | None = None) -> dict:
         "last_eval_success": evals[-1]["success_rate"] if evals else None,
         "best_eval_success_any_step": max((e["success_rate_any_step"] for e in evals if "success_rate_any_step" in e),
                                           default=None),
-        "curve": {k: [e.get(k) for e in episodes] for k in ("episode", "success", "success_any_step", "task_return", "reward_gap")},
+        "curve": {k: [e.get(k) for e in episodes]
+                  for k in ("episode", "success", "success_any_step", "task_return", "reward_gap")},
         "mean_update_ms": sum(e.get("update_ms", 0) for e in episodes) / max(1, sum("update_ms" in e for e in episodes)),
         "machine": {"torch_threads": config["train"]["threads"] or torch.get_num_threads(), "platform": platform.platform()},
         "config": config, **(extra or {}),

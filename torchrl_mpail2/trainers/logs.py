@@ -12,7 +12,8 @@ GROUPS = {
     "q_": "value", "learned_reward_mean": "value", "alpha": "policy", "entropy": "policy", "imagined_return": "policy",
     "policy_influence": "planner", "elite_return": "planner", "plan_std": "planner",
     "success": "environment", "task_return": "environment", "normalized_return": "environment", "length": "environment",
-    "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed", "dynamics_error_last": "losses", "nonfinite_skips": "losses",
+    "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed",
+    "dynamics_error_last": "losses", "nonfinite_skips": "losses",
 }
 
 

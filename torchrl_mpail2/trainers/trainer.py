@@ -45,6 +45,13 @@ LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 
 
+def episode_outcome(episode: TensorDict) -> dict[str, float]:
+    """Success at the last step, success at any step (the paper's definition) and task return of one episode."""
+    success = episode["next", "success"]
+    return {"success": float(success[-1].item()), "success_any_step": float(success.any().item()),
+            "task_return": float(episode["next", "episode_task_return"][-1].item())}
+
+
 def default_demo_dir(cfg: ExperimentConfig) -> Path:
     t = cfg.train
     return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}-{t.num_demos}ep-seed{t.seed}"
@@ -177,21 +184,19 @@ class MPAIL2Trainer:
         episodes = episodes or self.cfg.train.eval_episodes
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.seed + 10_000)
         saved = self.planner.get_extra_state() if self.planner is not None else None
-        successes, successes_any, returns = [], [], []
         actor = self.actor.actor
         with set_exploration_type(ExplorationType.DETERMINISTIC):
-            for _ in range(episodes):
-                traj = env.rollout(100_000, actor, break_when_any_done=True)
-                successes.append(float(traj["next", "success"][-1].item()))
-                successes_any.append(float(traj["next", "success"].any().item()))
-                returns.append(float(traj["next", "episode_task_return"][-1].item()))
+            outcomes = [episode_outcome(env.rollout(100_000, actor, break_when_any_done=True)) for _ in range(episodes)]
         if self.planner is not None:
             self.planner.set_extra_state(saved)
-        mean_return = sum(returns) / len(returns)
+        mean = {key: sum(o[key] for o in outcomes) / len(outcomes) for key in outcomes[0]}
+        return {"success_rate": mean["success"], "success_rate_any_step": mean["success_any_step"],
+                "return": mean["task_return"], "normalized_return": self.normalized_return(mean["task_return"])}
+
+    def normalized_return(self, task_return: float) -> float:
+        """``task_return`` over the demonstrations' mean return (``nan`` where the demos hold no usable mean)."""
         demo_return = self.demos.mean_return
-        return {"success_rate": sum(successes) / len(successes),
-                "success_rate_any_step": sum(successes_any) / len(successes_any), "return": mean_return,
-                "normalized_return": mean_return / demo_return if demo_return else float("nan")}
+        return task_return / demo_return if math.isfinite(demo_return) and demo_return != 0 else math.nan
 
     # ---- checkpoints -----------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -335,15 +340,13 @@ class MPAIL2Trainer:
         return evaluation
 
     def _episode_record(self, episode: TensorDict) -> dict:
-        record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0],
-                  "success": float(episode["next", "success"][-1].item()),
-                  "success_any_step": float(episode["next", "success"].any().item()),
-                  "task_return": float(episode["next", "episode_task_return"][-1].item()),
+        record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0], **episode_outcome(episode),
                   "random_actions": bool(self.actor.random_actions)}
         if "policy_influence" in episode.keys() and not self.actor.random_actions:
             record["policy_influence"] = float(episode["policy_influence"].mean())
-        if math.isfinite(self.demos.mean_return) and self.demos.mean_return != 0:
-            record["normalized_return"] = record["task_return"] / self.demos.mean_return
+        normalized = self.normalized_return(record["task_return"])
+        if math.isfinite(normalized):
+            record["normalized_return"] = normalized
         acting = self.actor.pop_stats()
         if not self.actor.random_actions:
             record.update(acting)
