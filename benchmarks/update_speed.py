@@ -7,7 +7,9 @@ as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False`
 (the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes and the value target's
 imagined rollout under bf16 autocast), ``one_transition_per_window`` and ``one_transition_per_window_bf16``
 (``LossConfig(transitions_per_window=1)``: the reward, value and actor stages on one random transition of each
-window, i.e. B transitions rather than B x T; the dynamics stage unchanged).
+window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``optimised_mixed_bf16`` and
+``one_transition_per_window_mixed_bf16`` (``MPAIL2Updater(bf16=True)``: every stage's forward pass under bf16
+autocast, float32 weights, gradients and optimisers).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -30,7 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
-            "one_transition_per_window", "one_transition_per_window_bf16")
+            "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",
+            "one_transition_per_window_mixed_bf16")
 #: (label, callable path) timed inside one update, in the order the update runs them.
 STAGE_CALLS = (("dynamics loss", "loss.dynamics_loss.forward"), ("latents (replay + expert)", "loss.replay_latents"),
                ("latents (replay + expert)", "loss.expert_latents"), ("reward loss", "loss.reward_loss.forward"),
@@ -76,7 +79,8 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
         context = contextlib.nullcontext()
     with context:
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
-                                bf16_stop_gradient=variant.endswith("bf16_stop_gradient") or variant.endswith("_bf16"))
+                                bf16_stop_gradient=variant.endswith(("bf16_stop_gradient", "window_bf16")),
+                                bf16=variant.endswith("mixed_bf16"))
         updater.update(td)  # warm-up: optimiser state, allocator
         totals, stages = [], []
         record: dict = {}
@@ -139,7 +143,8 @@ def markdown(summary: dict, profiles: dict, metas: dict) -> str:
                   f"{meta['updates']} update(s) per variant; load average at start / end {meta['load_start']} / {meta['load_end']}.",
                   "", "| variant | ms / update | speed-up vs initial | peak RSS (MB) |", "|---|---:|---:|---:|"]
         for variant, entry in per_variant.items():
-            lines.append(f"| {variant} | {entry['update_ms']:.0f} | {entry['speedup_vs_initial']:.2f}x | "
+            speedup = "-" if entry["speedup_vs_initial"] is None else f"{entry['speedup_vs_initial']:.2f}x"
+            lines.append(f"| {variant} | {entry['update_ms']:.0f} | {speedup} | "
                          f"{entry.get('peak_rss_mb', float('nan')):.0f} |")
         stage_names = list(dict.fromkeys(k for e in per_variant.values() for k in e["stages_ms"]))
         lines += ["", "Per-stage breakdown (ms, median; forward = the loss's forward incl. its encodes, "

@@ -287,3 +287,33 @@ def test_bf16_value_target_is_close_and_gradient_paths_stay_fp32():
     assert y16.dtype == torch.float32 and not torch.equal(y16, y32)
     assert (y16 - y32).abs().max() < 0.05 * y32.abs().max()
     assert torch.equal(actor16, actor32)  # returns with gradients ignore the context
+
+
+def _flat_grads(module) -> torch.Tensor:
+    return torch.cat([p.grad.flatten() for p in module.parameters() if p.grad is not None])
+
+
+@pytest.mark.parametrize("images", [False, True])
+def test_bf16_update_is_mixed_precision_and_close_to_fp32(images):
+    m, td = _update_case(contiguous=True, images=images)
+    m32 = copy.deepcopy(m)
+    loss, loss32 = MPAIL2Loss(m, LossConfig(init_alpha=0.1)), MPAIL2Loss(m32, LossConfig(init_alpha=0.1))
+    updater = MPAIL2Updater(loss, retain_memory=False, bf16=True)
+    assert all(sub.bf16_stop_gradient for sub in (loss.dynamics_loss, loss.value_loss, loss.actor_loss))
+    reference = MPAIL2Updater(loss32, retain_memory=False)
+    torch.manual_seed(11)
+    metrics = updater.update(td)
+    torch.manual_seed(11)
+    expected = reference.update(td)
+    for key in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor", "grad_penalty", "q_target_mean"):
+        assert metrics[key].dtype == torch.float32, key
+        assert not torch.equal(metrics[key], expected[key]), f"{key}: bf16 mode left the computation in fp32"
+        assert (metrics[key] - expected[key]).abs() <= 0.05 * expected[key].abs() + 1e-3, key
+    # master weights, their gradients and the Polyak targets stay fp32; gradients point the same way
+    for name in ("encoder", "dynamics", "reward", "value", "policy"):
+        module, module32 = getattr(m, name), getattr(m32, name)
+        assert all(p.dtype == torch.float32 for p in module.parameters()), name
+        g, g32 = _flat_grads(module), _flat_grads(module32)
+        assert g.dtype == torch.float32
+        assert F.cosine_similarity(g, g32, dim=0) > 0.95, name
+    assert all(t.dtype == torch.float32 for t in loss.value_loss.target_qvalue_network_params.values(True, True))

@@ -38,18 +38,24 @@ class PlanPolicyNet(nn.Module):
         self.net = mlp(latent_dim, hidden_dims, 2 * horizon * action_dim)
 
     def distribution_params(self, z: Tensor) -> tuple[Tensor, Tensor]:
-        """``z [*B, Z]`` -> ``(mean, log_std)``, each ``[*B, H, A]`` (log-std smoothly bounded)."""
+        """``z [*B, Z]`` -> ``(mean, log_std)``, each ``[*B, H, A]`` (log-std smoothly bounded), always float32:
+        the squashing correction ``log(1 - tanh^2)`` is too coarse in bfloat16 (bf16 planning, bf16 updates)."""
         check_last_dim("policy input 'z'", z, self.latent_dim)
-        out = self.net(z).unflatten(-1, (2, self.horizon, self.action_dim))
+        out = self.net(z).float().unflatten(-1, (2, self.horizon, self.action_dim))
         mean, raw = out.unbind(-3)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(raw) + 1.0)
         return mean, log_std
 
     def forward(self, z: Tensor, deterministic: bool = False, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
-        """Samples a plan: ``z [*B, Z]`` -> ``(plan [*B, H, A] in [-1, 1], log_prob [*B])`` (log-prob of the whole plan)."""
+        """Samples a plan: ``z [*B, Z]`` -> ``(plan [*B, H, A] in [-1, 1], log_prob [*B])`` (log-prob of the whole plan).
+
+        The distribution is float32; the plan comes back in the dtype of the network's output (bfloat16 in the
+        bf16 modes, so that it feeds bf16 dynamics), its log-probability in float32.
+        """
+        dtype = z.dtype if not torch.is_autocast_enabled(z.device.type) else torch.get_autocast_dtype(z.device.type)
         mean, log_std = self.distribution_params(z)
         plan, log_prob = squashed_gaussian_sample(mean, log_std, deterministic=deterministic, generator=generator)
-        return plan, log_prob.sum(-1)
+        return plan.to(dtype), log_prob.sum(-1)
 
 
 class MultiStepPolicy(TensorDictModuleBase):

@@ -15,6 +15,8 @@ ABLATIONS = {
     "PMO": "[-PMO] AIRL: DAC trained on the latest episode only",
 }
 
+UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
+
 
 @dataclass
 class TrainConfig:
@@ -60,6 +62,10 @@ class TrainConfig:
     """torch intra-op threads (None: torch's default)."""
     progress: bool = True
     """Show a tqdm progress bar."""
+    update_precision: str = "float32"
+    """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16_stop_gradient (bf16 autocast for the
+    computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
+    optimiser). See docs/results/speed_notes.md for speed and closeness."""
 
     def __post_init__(self) -> None:
         if self.ablation not in ABLATIONS:
@@ -71,6 +77,11 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
         if self.utd <= 0:
             raise ConfigError(f"TrainConfig.utd must be > 0, got {self.utd}")
+        if self.update_precision not in UPDATE_PRECISIONS:
+            raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
+        if self.update_precision != "float32" and self.ablation in ("PM", "PMO"):
+            raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
+                              f"not to the model-free ablation {self.ablation!r}")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
 

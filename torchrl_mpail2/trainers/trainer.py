@@ -103,7 +103,8 @@ class MPAIL2Trainer:
             self.updater = ModelFreeUpdater(self.loss)
         else:
             self.loss = MPAIL2Loss(self.modules, cfg.loss)
-            self.updater = MPAIL2Updater(self.loss)
+            self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=t.update_precision == "bf16_stop_gradient",
+                                         bf16=t.update_precision == "bf16")
             self.planner = LatentMPPIPlanner(self.modules, self.env.action_spec, cfg.planner)
         actor = self.planner if t.ablation in PLANNING_ABLATIONS else PolicyActor(self.modules)
         self.actor = WarmupSwitch(actor, self.env.action_spec)

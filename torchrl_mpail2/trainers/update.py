@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import ctypes
 from collections import Counter
+from contextlib import nullcontext
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -50,6 +51,11 @@ class MPAIL2Updater:
             dynamics loss's targets and of the replay and expert latents, and the value target's imagined rollout.
             Faster (mostly with cameras), but latents and targets move by about 1e-2 (relative). Everything that
             carries gradients stays in float32. Defaults to False (float32 throughout).
+        bf16 (bool): mixed precision for the whole update: each stage's forward pass (gradient penalty and
+            stop-gradient parts included) runs under bfloat16 autocast, exited before the backward pass and the
+            optimiser step; parameters, gradients, Adam's moments and the Polyak targets stay float32. Implies
+            ``bf16_stop_gradient``. About 2-3x faster on CPUs with AVX-512 bf16; losses move by about 1e-2
+            (relative). Defaults to False.
 
     Examples:
         >>> from torchrl_mpail2.config import ModelConfig
@@ -65,10 +71,13 @@ class MPAIL2Updater:
         ['loss_actor', 'loss_alpha', 'loss_dynamics', 'loss_reward', 'loss_value']
     """
 
-    def __init__(self, loss: MPAIL2Loss, *, retain_memory: bool = True, bf16_stop_gradient: bool = False):
+    def __init__(self, loss: MPAIL2Loss, *, retain_memory: bool = True, bf16_stop_gradient: bool = False,
+                 bf16: bool = False):
         if retain_memory:
             retain_freed_memory()
         self.loss = loss
+        self.bf16 = bf16
+        bf16_stop_gradient = bf16_stop_gradient or bf16
         for module in loss.modules():
             if isinstance(module, MPAIL2LossBase):
                 module.bf16_stop_gradient = bf16_stop_gradient
@@ -80,6 +89,14 @@ class MPAIL2Updater:
             self.optimizers[stage] = torch.optim.Adam([{"params": g["params"], "lr": g["lr"]} for g in groups])
         self.target_updater = SoftUpdate(loss.value_loss, tau=loss.cfg.tau)
         self.skipped: Counter[str] = Counter()
+
+    def _forward_precision(self):
+        """bf16 autocast for one stage's forward pass (``bf16=True``), else nothing. Entered and left per stage:
+        autocast caches its bf16 copies of the weights until the outermost context exits, so a context held
+        across an optimiser step would hand the next stage stale weights."""
+        if not self.bf16:
+            return nullcontext()
+        return torch.autocast(next(self.loss.parameters()).device.type, dtype=torch.bfloat16)
 
     def _step(self, stage: str, value: torch.Tensor) -> None:
         if not bool(torch.isfinite(value)):
@@ -105,27 +122,30 @@ class MPAIL2Updater:
         Returns:
             TensorDict: every ``loss_*`` term and diagnostic, detached.
         """
-        metrics = self.loss.dynamics_loss(tensordict)
+        with self._forward_precision():
+            metrics = self.loss.dynamics_loss(tensordict)
         self._step("dynamics", metrics["loss_dynamics"])
         # The encoder changes only in the dynamics stage, so latents encoded now are exactly
         # what the reward, value and actor stages would each encode.
         metrics.update(self._reward_value_actor(policy_tensordict if policy_tensordict is not None else tensordict))
-        return metrics.apply(lambda x: x.detach())
+        return metrics.apply(lambda x: x.detach().float())
 
     def _reward_value_actor(self, tensordict: TensorDictBase) -> TensorDictBase:
         """The reward, value (+ Polyak) and actor (+ alpha) stages on stop-gradient latents of one batch
         (``cfg.transitions_per_window`` random transitions of each window)."""
         loss = self.loss
         tensordict = sample_window_transitions(tensordict, loss.cfg.transitions_per_window)
-        latents = loss.replay_latents(tensordict)
-        metrics = loss.reward_loss(tensordict, latents=latents, expert_latents=loss.expert_latents(tensordict))
+        with self._forward_precision():
+            latents = loss.replay_latents(tensordict)
+            metrics = loss.reward_loss(tensordict, latents=latents, expert_latents=loss.expert_latents(tensordict))
         self._step("reward", metrics["loss_reward"])
-        with stop_gradient_precision(self.target_dtype):
+        with self._forward_precision(), stop_gradient_precision(self.target_dtype):
             out = loss.value_loss(tensordict, latents=latents)
         self._step("value", out["loss_value"])
         self.target_updater.step()
         metrics.update(out)
-        out = loss.actor_loss(tensordict, latents=latents)
+        with self._forward_precision():
+            out = loss.actor_loss(tensordict, latents=latents)
         self._step("actor", out["loss_actor"])
         self._step("alpha", out["loss_alpha"])
         metrics.update(out)
