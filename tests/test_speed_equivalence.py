@@ -301,10 +301,19 @@ def test_bf16_update_is_mixed_precision_and_close_to_fp32(images):
     updater = MPAIL2Updater(loss, retain_memory=False, bf16=True)
     assert all(sub.bf16_stop_gradient for sub in (loss.dynamics_loss, loss.value_loss, loss.actor_loss))
     reference = MPAIL2Updater(loss32, retain_memory=False)
+    autocast_at_step = []
+    step = updater._step
+
+    def spy(stage, value):  # autocast must be off when a stage steps, or its cached bf16 weights go stale
+        autocast_at_step.append(torch.is_autocast_enabled("cpu"))
+        step(stage, value)
+
+    updater._step = spy
     torch.manual_seed(11)
     metrics = updater.update(td)
     torch.manual_seed(11)
     expected = reference.update(td)
+    assert autocast_at_step == [False] * 5  # dynamics, reward, value, actor, alpha
     for key in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor", "grad_penalty", "q_target_mean"):
         assert metrics[key].dtype == torch.float32, key
         assert not torch.equal(metrics[key], expected[key]), f"{key}: bf16 mode left the computation in fp32"

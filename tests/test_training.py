@@ -93,6 +93,10 @@ def test_bad_configs_fail_before_training():
         _cfg("train.episodes=3")
     with pytest.raises(ConfigError, match="unknown ablation"):
         _cfg("train.ablation=XYZ")
+    with pytest.raises(ConfigError, match="unknown update_precision"):
+        _cfg("train.update_precision=fp16")
+    with pytest.raises(ConfigError, match="model-based updater only"):
+        _cfg("train.ablation=PM", "train.update_precision=bf16")
 
 
 def _wait_for(predicate, timeout, proc):
