@@ -32,17 +32,22 @@ def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
                   for path in (run_dir / "checkpoints").glob("episode_*") if path.is_dir())
 
 
+def trainer_for_run(run_dir: Path, scratch: str, threads: int | None = None) -> MPAIL2Trainer:
+    """A trainer rebuilt from ``run_dir/config.json`` whose own files go to ``scratch`` (the run folder is only read)."""
+    cfg = apply_overrides(ExperimentConfig.from_dict(json.loads((run_dir / "config.json").read_text())),
+                          ["train.progress=false", "train.logger=none", f"train.run_dir={scratch}/eval",
+                           *([f"train.threads={threads}"] if threads else [])])
+    return MPAIL2Trainer(cfg)
+
+
 def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None) -> dict:
-    cfg_dict = json.loads((run_dir / "config.json").read_text())
     checkpoints = numbered_checkpoints(run_dir)
     if not checkpoints:
         raise SystemExit(f"no numbered checkpoints under {run_dir / 'checkpoints'}")
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
-        cfg = apply_overrides(ExperimentConfig.from_dict(cfg_dict),
-                              ["train.progress=false", "train.logger=none", f"train.run_dir={scratch}/eval",
-                               *([f"train.threads={threads}"] if threads else [])])
-        trainer = MPAIL2Trainer(cfg)
+        trainer = trainer_for_run(run_dir, scratch, threads)
+        cfg = trainer.cfg
         for episode, path in tqdm(checkpoints, desc="checkpoints"):
             trainer.load(path, with_replay=False)
             if getattr(trainer, "eval_env", None) is not None:  # a fresh env: the same episodes for every checkpoint
