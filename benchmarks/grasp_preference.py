@@ -10,7 +10,8 @@ the gripper command held at +1 (close) and one at -1 (open) for all H steps. Rob
 the sign of the command, so a planner whose return prefers -1 here lets the cube go.
 
 Writes ``RUN_DIR/grasp_preference.json`` and, with ``--name``, ``docs/results/<name>_grasp_preference.json``:
-per checkpoint, the mean return difference (close minus open), the fraction of states that prefer closing, the
+per checkpoint, the mean return difference (close minus open) split into its learned-reward part (H discounted
+steps) and its terminal-value part, the fraction of states that prefer closing, the
 quartiles of the planned first gripper command, and the evaluation success from ``checkpoint_evals.json`` if
 ``benchmarks/evaluate_checkpoints.py`` has run.
 """
@@ -26,7 +27,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from evaluate_checkpoints import RESULTS, numbered_checkpoints, trainer_for_run
-from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE, chain_rewards, rollout_latents
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
 GRIPPER = -1  # the gripper command is the last action dimension
@@ -48,14 +49,21 @@ def preference(trainer, states: TensorDict) -> dict:
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         plan = planner(states.clone())["plan"]
     z = trainer.modules.encoder.encode(states)
-    returns = {}
+    m, horizon = trainer.modules, plan.shape[-2]
+    discounts = planner.cfg.gamma ** torch.arange(horizon, dtype=z.dtype)
+    returns, rewards = {}, {}
     for command in (1.0, -1.0):
         held = plan.clone()
         held[..., GRIPPER] = command
         returns[command] = planner.score(z, held.unsqueeze(1), heads).squeeze(1)
+        latents = rollout_latents(m.dynamics.module, z, held)
+        rewards[command] = (discounts[:, None] * chain_rewards(m.reward.module, latents)).sum(0)
     difference = returns[1.0] - returns[-1.0]
+    reward_difference = rewards[1.0] - rewards[-1.0]
     quartiles = torch.quantile(plan[:, 0, GRIPPER], torch.tensor([0.25, 0.5, 0.75]))
     return {"close_minus_open": difference.mean().item(), "fraction_prefer_close": (difference > 0).float().mean().item(),
+            "reward_part": reward_difference.mean().item(),
+            "terminal_value_part": (difference - reward_difference).mean().item(),
             "planned_gripper_quartiles": [round(q, 3) for q in quartiles.tolist()]}
 
 
