@@ -24,7 +24,8 @@ def label(result: dict, name: str) -> str:
     loss, train = result["config"]["loss"], result["config"]["train"]
     tpw = loss.get("transitions_per_window") or "all"
     scale = "raw critic" if loss.get("reward_scale_momentum") is None else "scaled reward"
-    return f"{name}: batch {train['batch_size']}, UTD {train['utd']}, {tpw} transitions/window, {scale}"
+    eta = result["config"].get("planner", {}).get("temperature", 2.0)
+    return f"{name}: batch {train['batch_size']}, UTD {train['utd']}, {tpw} transitions/window, {scale}, eta {eta:g}"
 
 
 def plot(names: list[str], out: str, window: int = 25) -> Path:
