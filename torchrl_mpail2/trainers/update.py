@@ -54,8 +54,8 @@ class MPAIL2Updater:
         bf16 (bool): mixed precision for the whole update: each stage's forward pass (gradient penalty and
             stop-gradient parts included) runs under bfloat16 autocast, exited before the backward pass and the
             optimiser step; parameters, gradients, Adam's moments and the Polyak targets stay float32. Implies
-            ``bf16_stop_gradient``. About 2-3x faster on CPUs with AVX-512 bf16; losses move by about 1e-2
-            (relative). Defaults to False.
+            ``bf16_stop_gradient``. 2-3x faster on CPUs with AVX-512 bf16 (docs/results/speed_notes.md); losses
+            move by up to about 2% (relative) on the test batches. Defaults to False.
 
     Examples:
         >>> from torchrl_mpail2.config import ModelConfig
