@@ -46,6 +46,7 @@ def grasped_states(run_dir: Path, keys: list[str], count: int, seed: int = 0) ->
 @torch.no_grad()
 def preference(trainer, states: TensorDict) -> dict:
     planner, heads = trainer.planner, torch.arange(HEADS_PER_ESTIMATE)
+    planner.reset()  # no warm start: each state is planned from a zero mean, whatever ran before
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         plan = planner(states.clone())["plan"]
     z = trainer.modules.encoder.encode(states)
