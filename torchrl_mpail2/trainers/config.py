@@ -14,6 +14,10 @@ ABLATIONS = {
     "PM": "[-PM] DAC: no planner, no dynamics model; single-step policy, model-free soft Q, encoder trained by the value loss",
     "PMO": "[-PMO] AIRL: DAC trained on the latest episode only",
 }
+#: Ablations that plan, that have no world model, and that train reward/value/policy on the latest episode only.
+PLANNING_ABLATIONS = ("none", "O")
+MODEL_FREE_ABLATIONS = ("PM", "PMO")
+LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 
 UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
 
@@ -79,7 +83,7 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.utd must be > 0, got {self.utd}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
-        if self.update_precision != "float32" and self.ablation in ("PM", "PMO"):
+        if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
             raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
                               f"not to the model-free ablation {self.ablation!r}")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):

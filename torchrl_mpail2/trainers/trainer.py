@@ -28,7 +28,9 @@ from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
 from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
 from torchrl_mpail2.trainers import checkpoint as ckpt
-from torchrl_mpail2.trainers.config import ExperimentConfig
+from torchrl_mpail2.trainers.config import (
+    LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig,
+)
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
 from torchrl_mpail2.trainers.update import MPAIL2Updater
@@ -37,10 +39,6 @@ log = logging.getLogger(__name__)
 TRAJ_KEY = ("collector", "traj_ids")
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
 DEFAULT_EPISODE_BOUND = 1000
-#: Ablations that plan, that have no world model, and that train reward/value/policy on the latest episode only.
-PLANNING_ABLATIONS = ("none", "O")
-MODEL_FREE_ABLATIONS = ("PM", "PMO")
-LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 #: What ``--transfer`` copies from another run: everything, or only the world model.
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 

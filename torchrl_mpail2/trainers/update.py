@@ -77,6 +77,7 @@ class MPAIL2Updater:
             retain_freed_memory()
         self.loss = loss
         self.bf16 = bf16
+        self.device_type = next(loss.parameters()).device.type
         bf16_stop_gradient = bf16_stop_gradient or bf16
         for module in loss.modules():
             if isinstance(module, MPAIL2LossBase):
@@ -96,7 +97,7 @@ class MPAIL2Updater:
         across an optimiser step would hand the next stage stale weights."""
         if not self.bf16:
             return nullcontext()
-        return torch.autocast(next(self.loss.parameters()).device.type, dtype=torch.bfloat16)
+        return torch.autocast(self.device_type, dtype=torch.bfloat16)
 
     def _step(self, stage: str, value: torch.Tensor) -> None:
         if not bool(torch.isfinite(value)):
