@@ -233,3 +233,9 @@ def test_cli_record_and_info(tmp_path):
     os.truncate(out / "observations" / "step.memmap", 8)
     with pytest.raises(DemoFormatError, match="truncated"):
         demos_cli.main(["info", str(out)])  # in-process: a third interpreter start costs seconds
+
+
+def test_cli_lift_speed_is_lift_only(tmp_path):
+    with pytest.raises(SystemExit, match="robosuite/Lift only"):
+        demos_cli.main(["record", "--env", "point_mass", "--lift-speed", "0.01", "--out", str(tmp_path / "pm")])
+    assert not (tmp_path / "pm").exists()

@@ -110,6 +110,27 @@ def test_scripted_expert_succeeds(state_envs, task, seed):
         assert rollout["next", "object"][-1, -1] < 0, "success flag set but the cube is not past the line"
 
 
+def _lift_profile(env, expert):
+    """Steps with the cube between 0.5 and 4 cm above its resting height, and whether the episode succeeds."""
+    env.set_seed(0)
+    with torch.no_grad():
+        rollout = env.rollout(env.base_env.horizon, expert)
+    heights = rollout["next", "object"][:, 2]  # cube z
+    rest = rollout["object"][0, 2]
+    rising = ((heights > rest + 0.005) & (heights < rest + 0.04)).sum().item()
+    return rising, bool(rollout["next", "success"][-1])
+
+
+def test_slow_lift_expert_spends_longer_between_table_and_lift_height(state_envs):
+    env = state_envs("Lift")
+    fast_rising, fast_success = _lift_profile(env, LiftExpert(env))
+    slow_rising, slow_success = _lift_profile(env, LiftExpert(env, max_lift_speed=0.005))
+    assert fast_success and slow_success
+    assert slow_rising >= 2 * fast_rising, (fast_rising, slow_rising)
+    with pytest.raises(ValueError, match="max_lift_speed"):
+        LiftExpert(env, max_lift_speed=0.2)
+
+
 def test_expert_rejects_wrong_task(state_envs):
     with pytest.raises(ValueError, match="Lift"):
         PushExpert(state_envs("Lift"))

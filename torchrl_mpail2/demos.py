@@ -3,6 +3,7 @@
 Usage::
 
     python -m torchrl_mpail2.demos record --env point_mass --obs state --episodes 20 --seed 0 --out demos/point_mass
+    python -m torchrl_mpail2.demos record --env robosuite/Lift --episodes 10 --lift-speed 0.005 --out demos/lift_slow
     python -m torchrl_mpail2.demos info demos/point_mass
 """
 from __future__ import annotations
@@ -18,8 +19,11 @@ from torchrl_mpail2.envs.factory import ENV_NAMES, make_env
 def _record(args: argparse.Namespace) -> None:
     from torchrl_mpail2.experts import get_expert
 
+    if args.lift_speed is not None and args.env != "robosuite/Lift":
+        raise SystemExit(f"--lift-speed applies to robosuite/Lift only, not {args.env}.")
     env = make_env(args.env, obs=args.obs, seed=args.seed)
-    expert = get_expert(args.env, env)
+    options = {} if args.lift_speed is None else {"max_lift_speed": args.lift_speed}
+    expert = get_expert(args.env, env, **options)
     demos = record_demos(
         env,
         expert,
@@ -49,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--episodes", type=int, default=20)
     record.add_argument("--seed", type=int, default=0, help="episode i is seeded with seed + i")
     record.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")
+    record.add_argument("--lift-speed", type=float, default=None,
+                        help="robosuite/Lift only: the scripted expert lifts at most this many metres per step")
     record.add_argument("--overwrite", action="store_true")
     record.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     record.set_defaults(run=_record)

@@ -8,7 +8,7 @@ from torchrl_mpail2.experts.point_mass import PointMassExpert
 __all__ = ["PointMassExpert", "get_expert"]
 
 
-def get_expert(env_name: str, env: EnvBase):
+def get_expert(env_name: str, env: EnvBase, **expert_kwargs):
     """Returns the expert policy for an env built by :func:`~torchrl_mpail2.envs.make_env`.
 
     The expert is a callable that reads a tensordict and writes ``"action"``. If it has a
@@ -17,6 +17,10 @@ def get_expert(env_name: str, env: EnvBase):
     Args:
         env_name (str): the name given to ``make_env`` (``"point_mass"``, ``"robosuite/Lift"``, ...).
         env (EnvBase): the env the expert will act in (scripted robosuite experts read its specs).
+
+    Keyword Args:
+        **expert_kwargs: passed to a scripted robosuite expert (e.g. ``max_lift_speed`` of
+            :class:`~torchrl_mpail2.experts.scripted.LiftExpert`); other experts take none.
 
     Raises:
         FileNotFoundError: for a gym task whose SAC expert weights are not in ``torchrl_mpail2/assets/experts``.
@@ -28,14 +32,17 @@ def get_expert(env_name: str, env: EnvBase):
         >>> type(expert).__name__
         'PointMassExpert'
     """
+    is_scripted = env_name in ("robosuite/Lift", "robosuite/Push", "robosuite/PushMirrored")
+    if expert_kwargs and not is_scripted:
+        raise ValueError(f"The expert of {env_name!r} takes no options, got {sorted(expert_kwargs)}.")
     if env_name == "point_mass":
         return PointMassExpert()
-    if env_name in ("robosuite/Lift", "robosuite/Push", "robosuite/PushMirrored"):
+    if is_scripted:
         # Lazy: scripted experts pull in robosuite.
         from torchrl_mpail2.experts import scripted
 
         expert_cls = scripted.LiftExpert if env_name == "robosuite/Lift" else scripted.PushExpert
-        return expert_cls(env)
+        return expert_cls(env, **expert_kwargs)
     if env_name.startswith("gym/"):
         from torchrl_mpail2.experts.sac import ASSET_DIR, SACExpert
 

@@ -80,6 +80,9 @@ class LiftExpert(_ScriptedExpert):
     Keyword Args:
         noise_std: std of Gaussian noise added to the action (diversifies demonstrations).
         seed: seed of that noise.
+        max_lift_speed: cap on the upward command while holding the cube, in metres per step (``None``: no cap,
+            the arm rises at up to 5 cm per step). A slow lift fills the demonstrations with grasped cubes at
+            every height between the table and the lift height instead of jumping past them in two steps.
     """
 
     tasks = ("Lift",)
@@ -87,6 +90,12 @@ class LiftExpert(_ScriptedExpert):
     hover_clearance = 0.06  # grip site above the cube centre while aligning
     aligned_tolerance = 0.01
     shut_opening = 0.01  # finger opening below which the grasp missed
+
+    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, max_lift_speed: float | None = None):
+        super().__init__(env, noise_std=noise_std, seed=seed)
+        if max_lift_speed is not None and not 0.0 < max_lift_speed <= MAX_EEF_DELTA:
+            raise ValueError(f"max_lift_speed must lie in (0, {MAX_EEF_DELTA}] metres per step, got {max_lift_speed}.")
+        self.max_lift_speed = max_lift_speed
 
     def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
         eef, cube = state["eef_pos"], state["cube_pos"]
@@ -100,7 +109,10 @@ class LiftExpert(_ScriptedExpert):
         fingers_on_cube = self.shut_opening < opening < cube_width + 0.01
         if at_cube and fingers_on_cube:
             target = np.array([cube[0], cube[1], table_height + self.lift_height])
-            return np.append(_move_towards(eef, target), GRIPPER_CLOSE)
+            command = _move_towards(eef, target)
+            if self.max_lift_speed is not None:
+                command[2] = min(command[2], self.max_lift_speed / MAX_EEF_DELTA)
+            return np.append(command, GRIPPER_CLOSE)
         if at_cube and opening >= cube_width + 0.01:
             # Hold still while the fingers close: moving now would knock the cube away.
             return np.append(_move_towards(eef, cube), GRIPPER_CLOSE)
