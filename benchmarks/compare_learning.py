@@ -25,7 +25,11 @@ def label(result: dict, name: str) -> str:
     tpw = loss.get("transitions_per_window") or "all"
     scale = "raw critic" if loss.get("reward_scale_momentum") is None else "scaled reward"
     eta = result["config"].get("planner", {}).get("temperature", 2.0)
-    return f"{name}: batch {train['batch_size']}, UTD {train['utd']}, {tpw} transitions/window, {scale}, eta {eta:g}"
+    extras = [f"{train['update_precision']} updates"] if train.get("update_precision", "float32") != "float32" else []
+    if train.get("demos"):
+        extras.append(f"demos {Path(train['demos']).name}")
+    return ", ".join([f"{name}: batch {train['batch_size']}, UTD {train['utd']}, {tpw} transitions/window, {scale}",
+                      f"eta {eta:g}", *extras])
 
 
 def plot(names: list[str], out: str, window: int = 25) -> Path:
