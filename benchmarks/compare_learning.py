@@ -28,6 +28,10 @@ def label(result: dict, name: str) -> str:
     extras = [f"{train['update_precision']} updates"] if train.get("update_precision", "float32") != "float32" else []
     if train.get("demos"):
         extras.append(f"demos {Path(train['demos']).name}")
+    elif train.get("num_demos", 10) != 10:
+        extras.append(f"{train['num_demos']} demos")
+    if "resumed_budget_s" in result:
+        extras.append(f"resumed for {result['resumed_budget_s'] / 60:.0f} more minutes")
     return ", ".join([f"{name}: batch {train['batch_size']}, UTD {train['utd']}, {tpw} transitions/window, {scale}",
                       f"eta {eta:g}", *extras])
 
