@@ -4,7 +4,8 @@
 
 Trains the ``lift_state`` preset under a wall-clock budget, then writes ``docs/results/<name>.json`` (episodes,
 env steps, wall time, best/last evaluation success, the config) and ``docs/results/<name>_curves.png``.
-Re-running with ``--summarize RUN_DIR`` rewrites the results from a run folder (e.g. one still going).
+Re-running with ``--summarize RUN_DIR`` rewrites the results from a run folder (e.g. one still going);
+``--resume RUN_DIR --budget-min M --name NAME`` continues a run for M more minutes and writes NAME.
 """
 from __future__ import annotations
 
@@ -56,9 +57,23 @@ def main() -> None:
     p.add_argument("--name", default="lift_state_learning")
     p.add_argument("--run-dir", default="runs/benchmark_lift_state")
     p.add_argument("--summarize", metavar="RUN_DIR", help="only rewrite the results from an existing run folder")
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help="continue a finished or stopped run from its last checkpoint for --budget-min more minutes")
     args, overrides = p.parse_known_args()
     if args.summarize:
         print(json.dumps(summarize(Path(args.summarize), args.name), indent=2)[:2000])
+        return
+    if args.resume:
+        if overrides:
+            raise SystemExit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
+        start = time.perf_counter()
+        trainer = MPAIL2Trainer.resume(args.resume)
+        trainer.cfg.train.max_wall_s = args.budget_min * 60  # the budget counts from this call
+        summary = trainer.train()
+        result = summarize(trainer.run_dir, args.name, {"resumed_wall_time_s": time.perf_counter() - start,
+                                                        "resumed_budget_s": args.budget_min * 60,
+                                                        "trainer_summary": summary})
+        print(json.dumps({k: v for k, v in result.items() if k != "config"}, indent=2))
         return
     cfg = apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",
                                                 f"train.run_dir={args.run_dir}", *overrides])
