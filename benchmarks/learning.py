@@ -58,30 +58,27 @@ def main() -> None:
     p.add_argument("--run-dir", default="runs/benchmark_lift_state")
     p.add_argument("--summarize", metavar="RUN_DIR", help="only rewrite the results from an existing run folder")
     p.add_argument("--resume", metavar="RUN_DIR",
-                   help="continue a finished or stopped run from its last checkpoint for --budget-min more minutes")
+                   help="continue a run stopped at its budget (or by a crash) from its last checkpoint "
+                        "for --budget-min more minutes")
     args, overrides = p.parse_known_args()
     if args.summarize:
         print(json.dumps(summarize(Path(args.summarize), args.name), indent=2)[:2000])
         return
+    start = time.perf_counter()
     if args.resume:
         if overrides:
             raise SystemExit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
-        start = time.perf_counter()
         trainer = MPAIL2Trainer.resume(args.resume)
         trainer.cfg.train.max_wall_s = args.budget_min * 60  # the budget counts from this call
-        summary = trainer.train()
-        result = summarize(trainer.run_dir, args.name, {"resumed_wall_time_s": time.perf_counter() - start,
-                                                        "resumed_budget_s": args.budget_min * 60,
-                                                        "trainer_summary": summary})
-        print(json.dumps({k: v for k, v in result.items() if k != "config"}, indent=2))
-        return
-    cfg = apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",
-                                                f"train.run_dir={args.run_dir}", *overrides])
-    start = time.perf_counter()
-    trainer = MPAIL2Trainer(cfg)
+        prefix = "resumed_"
+    else:
+        trainer = MPAIL2Trainer(apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",
+                                                                     f"train.run_dir={args.run_dir}", *overrides]))
+        prefix = ""
     summary = trainer.train()
-    result = summarize(trainer.run_dir, args.name, {"wall_time_s": time.perf_counter() - start,
-                                                    "budget_s": args.budget_min * 60, "trainer_summary": summary})
+    result = summarize(trainer.run_dir, args.name, {f"{prefix}wall_time_s": time.perf_counter() - start,
+                                                    f"{prefix}budget_s": args.budget_min * 60,
+                                                    "trainer_summary": summary})
     print(json.dumps({k: v for k, v in result.items() if k != "config"}, indent=2))
 
 
