@@ -73,3 +73,27 @@ def test_squashed_gaussian_log_prob_matches_torch_distributions():
     assert a.abs().max() < 1
     det, _ = squashed_gaussian_sample(mean, log_std, deterministic=True)
     assert torch.allclose(det, torch.tanh(mean))
+
+
+@pytest.mark.parametrize("form", ["paper", "authors", "td_lambda"])
+def test_multi_step_return_forms_weight_the_rollout_steps_as_documented(form):
+    from torchrl_mpail2.functional import multi_step_return
+
+    gamma, lmbda, horizon = 0.99, 0.95, 7
+    r = torch.randn(horizon, requires_grad=True)
+    q = torch.randn(horizon + 1)
+    multi_step_return(r, q, gamma, lmbda, form).backward()
+    k = torch.arange(horizon, dtype=torch.float32)
+    expected = {"paper": (1 - lmbda) * ((1 - lmbda) * gamma) ** k,
+                "td_lambda": (gamma * lmbda) ** k,
+                "authors": (1 - lmbda) * (gamma * lmbda) ** k}[form]
+    torch.testing.assert_close(r.grad, expected)
+
+
+def test_td_lambda_return_is_the_n_step_mixture():
+    """At lambda 0 it is the one-step TD target, at lambda 1 the H-step Monte Carlo return plus bootstrap."""
+    from torchrl_mpail2.functional import td_lambda_return
+
+    r, q = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([5.0, 6.0, 7.0, 8.0])
+    assert td_lambda_return(r, q, 0.5, 0.0).item() == pytest.approx(1 + 0.5 * 6)
+    assert td_lambda_return(r, q, 0.5, 1.0).item() == pytest.approx(1 + 0.5 * 2 + 0.25 * 3 + 0.125 * 8)

@@ -247,3 +247,16 @@ def test_updater_feeds_reward_value_actor_the_sampled_transitions_and_dynamics_w
     metrics = MPAIL2Updater(loss, retain_memory=False).update(replay_batch(batch=4, steps=3))
     assert seen == {"dynamics_loss": (4, 3), "reward_loss": (4, 1), "value_loss": (4, 1), "actor_loss": (4, 1)}
     assert all(torch.isfinite(v) for k, v in metrics.items() if k.startswith("loss_"))
+
+
+def test_return_form_reaches_value_and_actor_losses_and_is_validated():
+    from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig
+    from torchrl_mpail2.modules import MPAIL2Modules
+    from torchrl_mpail2.objectives import MPAIL2Loss
+
+    modules = MPAIL2Modules({"observation": [3]}, 2, ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16,
+                                                                 vector_coder_hidden=16, horizon=3))
+    loss = MPAIL2Loss(modules, LossConfig(return_form="td_lambda"))
+    assert loss.value_loss.return_form == loss.actor_loss.return_form == "td_lambda"
+    with pytest.raises(ConfigError, match="return_form"):
+        LossConfig(return_form="dreamer")

@@ -80,6 +80,10 @@ class LossConfig:
     """Discount gamma of returns."""
     lmbda: float = 0.95
     """Return parameter lambda of Eq. 6 (weight of the bootstrap q)."""
+    return_form: str = "paper"
+    """Form of the imagined return of the value target and the actor: ``paper`` (Eq. 6 as printed), ``authors``
+    (lambda q_0 + (1 - lambda) TD(lambda), the authors' code) or ``td_lambda`` (the standard TD(lambda) return);
+    see :func:`torchrl_mpail2.functional.multi_step_return`."""
     rho: float = 0.95
     """Temporal discount rho of the multi-step latent prediction loss (Eq. 2)."""
     gp_coef: float = 0.1
@@ -112,6 +116,10 @@ class LossConfig:
     def __post_init__(self) -> None:
         _check_unit_interval(self, "gamma", "lmbda", "tau")
         _check_unit_interval(self, "rho", closed=False)
+        from torchrl_mpail2.functional import RETURN_FORMS
+
+        if self.return_form not in RETURN_FORMS:
+            raise ConfigError(f"unknown LossConfig.return_form {self.return_form!r}; choose from {RETURN_FORMS}")
         _check_positive(self, "init_alpha", "lr", "encoder_lr", "alpha_lr", "value_grad_clip", "policy_grad_clip")
         if self.gp_coef < 0:
             raise ConfigError(f"LossConfig.gp_coef must be >= 0, got {self.gp_coef}")

@@ -48,6 +48,63 @@ def lambda_return(r: Tensor, q: Tensor, gamma: float, lmbda: float) -> Tensor:
     return G
 
 
+def td_lambda_return(r: Tensor, q: Tensor, gamma: float, lmbda: float) -> Tensor:
+    r"""The standard TD(lambda) return (Sutton and Barto; Dreamer, TD-MPC2), computed backwards.
+
+    .. math::
+        G_{k} = \hat r_{k} + \gamma\,[(1 - \lambda)\,\hat q_{k+1} + \lambda G_{k+1}],
+        \qquad G_{H} = \hat q_{H}.
+
+    Here lambda weights the longer returns: every step of the rollout reaches ``G_0`` with weight
+    :math:`(\gamma\lambda)^k`, where in :func:`lambda_return` it is :math:`((1-\lambda)\gamma)^k`.
+
+    Args:
+        r (Tensor): rewards ``[*B, H]``. q (Tensor): values ``[*B, H+1]``. gamma, lmbda (float).
+
+    Returns:
+        Tensor: ``G_0`` of shape ``[*B]``.
+
+    Examples:
+        >>> r = torch.tensor([1.0, 2.0])
+        >>> q = torch.tensor([10.0, 20.0, 30.0])
+        >>> # G_2 = 30; G_1 = 2 + 0.5*30 + 0.5*30 = 32; G_0 = 1 + 0.5*20 + 0.5*32 = 27
+        >>> td_lambda_return(r, q, gamma=1.0, lmbda=0.5)
+        tensor(27.)
+    """
+    horizon = r.shape[-1]
+    if q.shape[-1] != horizon + 1:
+        raise ValueError(f"q must have one more step than r: r {tuple(r.shape)}, q {tuple(q.shape)}")
+    G = q[..., horizon]
+    for k in range(horizon - 1, -1, -1):
+        G = r[..., k] + gamma * ((1.0 - lmbda) * q[..., k + 1] + lmbda * G)
+    return G
+
+
+#: The forms of the multi-step return an imagined rollout is scored with (see :func:`multi_step_return`).
+RETURN_FORMS = ("paper", "authors", "td_lambda")
+
+
+def multi_step_return(r: Tensor, q: Tensor, gamma: float, lmbda: float, form: str = "paper") -> Tensor:
+    r"""Return of an imagined rollout in one of :data:`RETURN_FORMS`.
+
+    * ``"paper"``: Eq. 6 as printed (:func:`lambda_return`), :math:`\approx \hat q_0` at lambda 0.95: the
+      gradient reaching plan step ``k`` falls like :math:`(1-\lambda)^k`.
+    * ``"authors"``: the authors' public implementation, :math:`\lambda \hat q_0 + (1-\lambda)\,G^{TD(\lambda)}_0`.
+    * ``"td_lambda"``: the standard TD(lambda) return :math:`G^{TD(\lambda)}_0` (:func:`td_lambda_return`).
+
+    Examples:
+        >>> r, q = torch.tensor([1.0, 2.0]), torch.tensor([10.0, 20.0, 30.0])
+        >>> [round(multi_step_return(r, q, 1.0, 0.8, f).item(), 2) for f in RETURN_FORMS]
+        [12.68, 14.12, 30.6]
+    """
+    if form == "paper":
+        return lambda_return(r, q, gamma, lmbda)
+    if form not in RETURN_FORMS:
+        raise ValueError(f"unknown return form {form!r}; choose from {RETURN_FORMS}")
+    G = td_lambda_return(r, q, gamma, lmbda)
+    return G if form == "td_lambda" else lmbda * q[..., 0] + (1.0 - lmbda) * G
+
+
 def gradient_penalty(critic, x_expert: Tensor, x_agent: Tensor, generator: torch.Generator | None = None) -> Tensor:
     r"""WGAN-GP penalty of Appendix A.2 on per-sample uniform interpolations.
 

@@ -12,7 +12,7 @@ from contextvars import ContextVar
 import torch
 from torch import Tensor, nn
 
-from torchrl_mpail2.functional import lambda_return
+from torchrl_mpail2.functional import RETURN_FORMS, multi_step_return
 from torchrl_mpail2.modules.dynamics import DynamicsNet
 from torchrl_mpail2.modules.policy import PlanPolicyNet
 from torchrl_mpail2.modules.reward import RewardNet
@@ -33,6 +33,12 @@ def stop_gradient_precision(dtype: torch.dtype | None):
         yield
     finally:
         _stop_gradient_dtype.reset(token)
+
+
+def _checked_form(form: str) -> str:
+    if form not in RETURN_FORMS:
+        raise ValueError(f"unknown return_form {form!r}; choose from {RETURN_FORMS}")
+    return form
 
 
 def draw_heads(num_q: int, device: torch.device) -> Tensor:
@@ -68,7 +74,7 @@ def chain_rewards(reward: RewardNet, latents: Tensor) -> Tensor:
 
 def imagined_lambda_return(
     z0: Tensor, plan: Tensor, dynamics: DynamicsNet, reward: RewardNet, q_estimate: Callable[[Tensor, Tensor], Tensor],
-    policy: PlanPolicyNet, gamma: float, lmbda: float,
+    policy: PlanPolicyNet, gamma: float, lmbda: float, return_form: str = "paper",
 ) -> Tensor:
     r"""Lambda-return of a plan rolled out through the latent model.
 
@@ -79,6 +85,7 @@ def imagined_lambda_return(
         z0 (Tensor): start latents ``[M, Z]``.
         plan (Tensor): actions ``[M, H, A]``.
         q_estimate (Callable): ``(z [H+1, M, Z], a [H+1, M, A]) -> [H+1, M]``.
+        return_form (str): one of :data:`~torchrl_mpail2.functional.RETURN_FORMS`.
 
     Returns:
         Tensor: ``G`` of shape ``[M]`` (float32, also under :func:`stop_gradient_precision`).
@@ -93,7 +100,7 @@ def imagined_lambda_return(
     with low_precision:
         actions = torch.cat([plan.transpose(0, 1), last_action.unsqueeze(0)], 0)
         q = q_estimate(latents, actions)
-    return lambda_return(r.transpose(0, 1).float(), q.transpose(0, 1).float(), gamma, lmbda)
+    return multi_step_return(r.transpose(0, 1).float(), q.transpose(0, 1).float(), gamma, lmbda, return_form)
 
 
 @contextmanager

@@ -13,7 +13,7 @@ from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen, imagined_lambda_return
+from torchrl_mpail2.objectives._imagination import _checked_form, ensemble_estimate, frozen, imagined_lambda_return
 
 
 class MultiStepActorLoss(MPAIL2LossBase):
@@ -30,7 +30,8 @@ class MultiStepActorLoss(MPAIL2LossBase):
     ``loss_alpha``). ``G`` uses the online Q, mean of two random heads.
 
     Keyword Args:
-        gamma, lmbda (float): as in Eq. 6. init_alpha (float): initial temperature.
+        gamma, lmbda (float): as in Eq. 6. return_form (str): form of the imagined return, one of ``RETURN_FORMS``.
+        init_alpha (float): initial temperature.
         target_entropy_per_step (float, optional): default ``-A``.
 
     Returns: ``loss_actor``, ``loss_alpha`` and detached ``alpha``, ``entropy`` (per step, ``-log pi / H``),
@@ -44,7 +45,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
 
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
-                 gamma: float = 0.99, lmbda: float = 0.95, init_alpha: float = 1e-3,
+                 gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", init_alpha: float = 1e-3,
                  target_entropy_per_step: float | None = None, reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.policy_network = policy_network
@@ -55,6 +56,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         action_dim = policy_network.net.action_dim
         self.target_entropy = float(-action_dim if target_entropy_per_step is None else target_entropy_per_step)
         self.gamma, self.lmbda = gamma, lmbda
+        self.return_form = _checked_form(return_form)
 
     def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
         z = latents[0] if latents is not None else self.replay_latents(tensordict)[0]
@@ -65,7 +67,8 @@ class MultiStepActorLoss(MPAIL2LossBase):
         qnet = self.qvalue_network.net
         with frozen(self.dynamics_network, self.reward_network, self.qvalue_network):
             G = imagined_lambda_return(z, plan, self.dynamics_network.module, self.reward_network.module,
-                                       ensemble_estimate(qnet, "mean"), policy, self.gamma, self.lmbda)
+                                       ensemble_estimate(qnet, "mean"), policy, self.gamma, self.lmbda,
+                                       self.return_form)
         alpha = self.log_alpha.exp().detach()
         loss_actor = self.reduce(alpha * log_prob_step - G)
         loss_alpha = self.reduce(-self.log_alpha * (log_prob_step.detach() + self.target_entropy))

@@ -56,9 +56,10 @@ class MPAIL2Loss(MPAIL2LossBase):
         self.reward_loss = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=cfg.gp_coef,
                                                  scale_momentum=cfg.reward_scale_momentum)
         self.value_loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
-                                                lmbda=cfg.lmbda, mask_terminal=cfg.mask_terminal)
+                                                lmbda=cfg.lmbda, return_form=cfg.return_form,
+                                                mask_terminal=cfg.mask_terminal)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
-                                             lmbda=cfg.lmbda, init_alpha=cfg.init_alpha,
+                                             lmbda=cfg.lmbda, return_form=cfg.return_form, init_alpha=cfg.init_alpha,
                                              target_entropy_per_step=cfg.target_entropy_per_step)
 
     def set_keys(self, **kwargs) -> None:

@@ -10,7 +10,7 @@ from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives._imagination import ensemble_estimate, imagined_lambda_return
+from torchrl_mpail2.objectives._imagination import _checked_form, ensemble_estimate, imagined_lambda_return
 
 
 class LambdaReturnValueLoss(MPAIL2LossBase):
@@ -30,6 +30,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
 
     Keyword Args:
         gamma (float): discount (0.99). lmbda (float): return parameter (0.95).
+        return_form (str): form of the imagined return, one of ``RETURN_FORMS`` (``"paper"``: Eq. 6 as printed).
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
 
     Parameters: ``qvalue_network_params`` and ``target_qvalue_network_params`` (update the latter with
@@ -47,13 +48,15 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
 
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
-                 gamma: float = 0.99, lmbda: float = 0.95, mask_terminal: bool = False, reduction: str = "mean"):
+                 gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", mask_terminal: bool = False,
+                 reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.__dict__["dynamics_network"] = dynamics_network  # read only: kept out of this loss's parameters
         self.__dict__["reward_network"] = reward_network
         self.__dict__["policy_network"] = policy_network
         self.convert_to_functional(qvalue_network, "qvalue_network", create_target_params=True)
         self.gamma, self.lmbda, self.mask_terminal = gamma, lmbda, mask_terminal
+        self.return_form = _checked_form(return_form)
 
     @torch.no_grad()
     def target(self, z, z_next, terminated=None):
@@ -62,7 +65,8 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         plan, _ = policy(z_next)
         with self.target_qvalue_network_params.data.to_module(self.qvalue_network):
             G = imagined_lambda_return(z_next, plan, self.dynamics_network.module, self.reward_network.module,
-                                       ensemble_estimate(self.qvalue_network.net, "min"), policy, self.gamma, self.lmbda)
+                                       ensemble_estimate(self.qvalue_network.net, "min"), policy, self.gamma, self.lmbda,
+                                       self.return_form)
         r = self.reward_network.module(z, z_next).squeeze(-1)
         if terminated is not None and self.mask_terminal:
             G = G * (~terminated.reshape(G.shape)).to(G.dtype)

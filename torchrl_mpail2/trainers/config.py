@@ -48,10 +48,15 @@ class TrainConfig:
     """Sub-trajectories per update (each H steps long)."""
     eval_every: int = 10
     """Evaluate every this many episodes (0: never)."""
-    eval_episodes: int = 10
-    """Episodes per evaluation, deterministic planner."""
+    eval_episodes: int = 20
+    """Episodes per evaluation, deterministic planner (50 for final numbers, as in the paper's real-world tables)."""
+    eval_seed: int = 2_000_000
+    """Seed of the first evaluation episode: episode ``i`` starts from env seed ``eval_seed + i`` and draws its
+    planner noise from a generator seeded the same way, so every evaluation of every run (any training seed)
+    plays the same initial states. Kept clear of the training (``seed + episode``) and demo (``seed + 1e6 + i``) seeds."""
     checkpoint_every: int = 10
-    """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too)."""
+    """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too).
+    The checkpoint kept as ``best`` is the evaluation with the highest any-step success (ties: last-step success)."""
     success_window: int = 25
     """Moving window (episodes) of the logged training success rate."""
     run_dir: str | None = None

@@ -110,7 +110,7 @@ class MPAIL2Trainer:
         self.replay = self._make_replay(self.run_dir / "replay_storage", horizon)
         self.latest = self._make_replay(None, horizon) if t.ablation in LATEST_EPISODE_ABLATIONS else None
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
-        self.best_eval = -math.inf
+        self.best_eval = (-math.inf, -math.inf)  # (any-step, last-step) success of the best evaluation
         (self.run_dir / "config.json").write_text(cfg.to_json())
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
@@ -173,24 +173,43 @@ class MPAIL2Trainer:
         return out
 
     # ---- evaluation ------------------------------------------------------------------------------
+    def evaluation_seeds(self, episodes: int | None = None) -> list[int]:
+        """Seeds of the fixed evaluation episodes (``eval_seed + i``), the same in every run."""
+        t = self.cfg.train
+        return [t.eval_seed + i for i in range(episodes or t.eval_episodes)]
+
     @torch.no_grad()
     def evaluate(self, episodes: int | None = None) -> dict:
-        """Deterministic-planner episodes on a separately seeded env: success rate, return, normalised return.
+        """Deterministic-actor episodes from a fixed set of initial states: success rates and returns.
 
-        ``success_rate`` counts episodes whose last step is a success (e.g. the cube still lifted at the end);
-        ``success_rate_any_step`` counts those that succeed at any step, the paper's definition (Appendix).
+        Episode ``i`` resets the evaluation env with seed ``eval_seed + i`` and the planner draws its sampling
+        noise from a generator with the same seed (its warm start cleared), so an evaluation depends only on the
+        learner's weights: the same checkpoint scores the same at any time and in any run.
+        ``success_rate_any_step`` (success at any step of the episode, the paper's definition, Appendix
+        "Metrics") is the headline figure; ``success_rate`` counts episodes whose last step is a success.
         """
-        episodes = episodes or self.cfg.train.eval_episodes
-        env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.seed + 10_000)
-        saved = self.planner.get_extra_state() if self.planner is not None else None
+        env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.eval_seed)
+        planner = self.planner
+        saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
         actor = self.actor.actor
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            outcomes = [episode_outcome(env.rollout(100_000, actor, break_when_any_done=True)) for _ in range(episodes)]
-        if self.planner is not None:
-            self.planner.set_extra_state(saved)
+        outcomes, device = [], next(self.modules.parameters()).device
+        try:
+            with set_exploration_type(ExplorationType.DETERMINISTIC):
+                for seed in self.evaluation_seeds(episodes):
+                    env.set_seed(seed)
+                    if planner is not None:
+                        planner.reset()
+                        planner.generator = torch.Generator(device=device).manual_seed(seed)
+                    outcomes.append(episode_outcome(env.rollout(100_000, actor, break_when_any_done=True)))
+        finally:
+            if planner is not None:
+                planner.set_extra_state(saved[0])
+                planner.generator = saved[1]
         mean = {key: sum(o[key] for o in outcomes) / len(outcomes) for key in outcomes[0]}
-        return {"success_rate": mean["success"], "success_rate_any_step": mean["success_any_step"],
-                "return": mean["task_return"], "normalized_return": self.normalized_return(mean["task_return"])}
+        return {"success_rate_any_step": mean["success_any_step"], "success_rate": mean["success"],
+                "return": mean["task_return"], "normalized_return": self.normalized_return(mean["task_return"]),
+                "episodes": len(outcomes),
+                "success_any_step_per_episode": [o["success_any_step"] for o in outcomes]}
 
     def normalized_return(self, task_return: float) -> float:
         """``task_return`` over the demonstrations' mean return (``nan`` where the demos hold no usable mean)."""
@@ -220,7 +239,9 @@ class MPAIL2Trainer:
         self.demo_buffer.generator.set_state(state["demo_rng"])
         ckpt.set_rng_state(state["rng"])
         self.counters.update(state["counters"])
-        self.best_eval = state["best_eval"]
+        best = state["best_eval"]
+        # older checkpoints kept the last-step success alone
+        self.best_eval = tuple(best) if isinstance(best, (list, tuple)) else (-math.inf, best)
         if with_replay and ckpt.has_replay(path):
             self.replay.loads(Path(path) / ckpt.REPLAY_DIR)
 
@@ -309,7 +330,7 @@ class MPAIL2Trainer:
                     self.save(f"episode_{done:06d}")
                 bar.update(1)
                 bar.set_postfix(success=f"{self.logger.success_rate(t.success_window):.2f}",
-                                eval="-" if evaluation is None else f"{evaluation['success_rate']:.2f}",
+                                eval="-" if evaluation is None else f"{evaluation['success_rate_any_step']:.2f}",
                                 sps=f"{record['env_steps_per_s']:.1f}")
         finally:
             bar.close()
@@ -323,7 +344,8 @@ class MPAIL2Trainer:
         plot_run(self.run_dir, t.success_window)
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
-                   "best_eval_success": self.best_eval if self.best_eval > -math.inf else None,
+                   "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
+                   "best_eval_success": self.best_eval[1] if self.best_eval[0] > -math.inf else None,
                    "last_eval": evaluation}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         return summary
@@ -332,8 +354,9 @@ class MPAIL2Trainer:
         evaluation = self.evaluate()
         evaluation["episode"] = self.counters["episodes"]
         self.logger.log_eval(evaluation)
-        if evaluation["success_rate"] > self.best_eval:
-            self.best_eval = evaluation["success_rate"]
+        score = (evaluation["success_rate_any_step"], evaluation["success_rate"])
+        if score > self.best_eval:
+            self.best_eval = score
             self.save("best")
         self.save("last", with_replay=True)
         return evaluation
