@@ -11,6 +11,7 @@ from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 from torchrl_mpail2.envs.robosuite_env import (  # noqa: E402
     MAX_EEF_DELTA,
+    PROPRIO_DIM,
     WORKSPACE_HIGH,
     WORKSPACE_LOW,
     make_robosuite_env,
@@ -203,3 +204,18 @@ def test_non_finite_action_raises_naming_the_task(state_envs, tmp_path, monkeypa
 def test_bad_names_raise_value_error(task, obs, message):
     with pytest.raises(ValueError, match=message):
         make_robosuite_env(task, obs=obs)
+
+
+@pytest.mark.parametrize("mode, expected", [("integrating", [0.2, 0.4, 0.6, 0.4]), ("binary", [1.0, 1.0, 1.0, -1.0])])
+def test_gripper_command_is_observed_and_binary_mode_jumps(mode, expected):
+    env = make_robosuite_env("Lift", seed=0, horizon=10, gripper=mode, observe_gripper_command=True)
+    assert env.observation_spec["proprio"].shape == (PROPRIO_DIM + 1,)
+    td = env.reset()
+    assert td["proprio"][-1].item() == 0.0  # robosuite clears the command at reset
+    commands = []
+    for grip in (1.0, 0.3, 0.9, -0.5):  # only the sign counts
+        td = env.step(td.set("action", torch.tensor([0.0, 0.0, 0.0, grip])))["next"]
+        commands.append(round(td["proprio"][-1].item(), 4))
+    assert commands == expected
+    with pytest.raises(ValueError, match="gripper mode 'sticky'"):
+        make_robosuite_env("Lift", gripper="sticky")

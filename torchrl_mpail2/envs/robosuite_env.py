@@ -16,7 +16,8 @@ still reaching a 4-5 cm cube's centre.
 Observation keys (flat, float32 unless stated):
 
 * ``"proprio"`` ``[26]``: end-effector position (3), finger joint positions (2), sin (7) and cos (7) of
-  the arm joint angles, arm joint velocities (7).
+  the arm joint angles, arm joint velocities (7); ``[27]`` with ``observe_gripper_command``, which appends the
+  gripper controller's current command in ``[-1, 1]`` (the paper's "gripper trigger"; robosuite does not observe it).
 * ``"object"`` ``[10]`` (Lift) / ``[11]`` (Push): cube position (3), cube quaternion xyzw (4),
   end-effector minus cube position (3); Push adds the distance the cube still has to travel past the line (1).
 * ``"external_image"`` / ``"wrist_image"``: uint8 ``[3, 64, 64]`` from robosuite's ``agentview`` and
@@ -60,6 +61,9 @@ WORKSPACE_LOW = np.array([-0.25, -0.25, 0.81])
 WORKSPACE_HIGH = np.array([0.25, 0.25, 1.15])
 GRIPPER_CLOSED = 1.0
 PROPRIO_DIM = 26
+#: ``integrating``: robosuite's Panda gripper, each step moves its internal command by 0.2 towards the sign of
+#: the action (up to ten steps from open to closed); ``binary``: the sign of the action opens or closes it at once.
+GRIPPER_MODES = ("integrating", "binary")
 
 # mujoco warnings that mean the physics or the commanded torques went non-finite or diverged.
 _INSTABILITY_WARNINGS = {
@@ -107,6 +111,8 @@ class RobosuiteEnv(EnvBase):
         horizon: steps per episode before ``truncated``; defaults to :data:`DEFAULT_HORIZON` of the task.
         seed: seeds robosuite at construction (Lift's cube size is drawn then) and the first resets.
         device: device of the output tensors.
+        gripper: one of :data:`GRIPPER_MODES` (``"integrating"``, robosuite's own, by default).
+        observe_gripper_command: append the gripper's current command to ``"proprio"``.
 
     Raises:
         ValueError: on an unknown task or observation mode.
@@ -130,8 +136,14 @@ class RobosuiteEnv(EnvBase):
         horizon: int | None = None,
         seed: int = 0,
         device: torch.device | str = "cpu",
+        gripper: str = "integrating",
+        observe_gripper_command: bool = False,
     ):
         _check_names(task, obs)
+        if gripper not in GRIPPER_MODES:
+            raise ValueError(f"Unknown gripper mode {gripper!r}; valid modes: {', '.join(GRIPPER_MODES)}.")
+        self.gripper_mode = gripper
+        self.observe_gripper_command = bool(observe_gripper_command)
         super().__init__(device=device, batch_size=torch.Size([]))
         self.task = task
         self.obs_mode = obs
@@ -172,7 +184,8 @@ class RobosuiteEnv(EnvBase):
         image_spec = Bounded(0, 255, (3, IMAGE_SIZE, IMAGE_SIZE), dtype=torch.uint8, device=self.device)
         observations = {"success": Categorical(2, (1,), dtype=torch.bool, device=self.device)}
         if self.obs_mode in ("state", "pixels"):
-            observations["proprio"] = Unbounded((PROPRIO_DIM,), dtype=torch.float32, device=self.device)
+            proprio_dim = PROPRIO_DIM + int(self.observe_gripper_command)
+            observations["proprio"] = Unbounded((proprio_dim,), dtype=torch.float32, device=self.device)
         if self.obs_mode == "state":
             object_dim = 11 if self.is_push else 10
             observations["object"] = Unbounded((object_dim,), dtype=torch.float32, device=self.device)
@@ -284,7 +297,18 @@ class RobosuiteEnv(EnvBase):
         position_action = np.clip((target - eef_pos) / MAX_EEF_DELTA, -1.0, 1.0)
         position_action[np.isnan(action[:3])] = np.nan
         gripper_action = [GRIPPER_CLOSED] if self.is_push else action[3:4]
+        if self.gripper_mode == "binary" and not np.isnan(gripper_action[0]):
+            # robosuite adds 0.2 * sign(action) to the stored command each step: start it at the target already
+            self._gripper.current_action = np.array([-1.0, 1.0]) * np.sign(gripper_action[0])
         return np.concatenate([position_action, gripper_action])
+
+    @property
+    def _gripper(self):
+        return self._sim_env.robots[0].gripper["right"]
+
+    def gripper_command(self) -> float:
+        """The gripper controller's current command in ``[-1, 1]`` (-1 open, +1 closed; 0 after a reset)."""
+        return float(np.atleast_1d(self._gripper.current_action)[-1])
 
     def _observation_td(self, sim_obs: dict) -> TensorDict:
         out = {"success": np.array([bool(self._sim_env._check_success())])}
@@ -296,6 +320,7 @@ class RobosuiteEnv(EnvBase):
                     sim_obs["robot0_joint_pos_sin"],
                     sim_obs["robot0_joint_pos_cos"],
                     sim_obs["robot0_joint_vel"],
+                    [self.gripper_command()] if self.observe_gripper_command else [],
                 ]
             ).astype(np.float32)
         if self.obs_mode == "state":
@@ -323,6 +348,8 @@ def make_robosuite_env(
     seed: int = 0,
     horizon: int | None = None,
     device: torch.device | str = "cpu",
+    gripper: str = "integrating",
+    observe_gripper_command: bool = False,
 ) -> TransformedEnv:
     """Build a seeded :class:`RobosuiteEnv` with step counting, init tracking and an episode task-return sum.
 
@@ -332,6 +359,7 @@ def make_robosuite_env(
         seed: seed of robosuite's generator (cube placement, initial joint noise).
         horizon: episode length in steps; the task default when ``None``.
         device: device of the output tensors.
+        gripper, observe_gripper_command: see :class:`RobosuiteEnv`.
 
     Returns:
         The env under ``StepCounter``, ``InitTracker`` (``"is_init"``) and
@@ -341,7 +369,8 @@ def make_robosuite_env(
         ValueError: on an unknown task or observation mode, listing the valid ones.
     """
     _check_names(task, obs)
-    base_env = RobosuiteEnv(task, obs, horizon=horizon, seed=seed, device=device)
+    base_env = RobosuiteEnv(task, obs, horizon=horizon, seed=seed, device=device, gripper=gripper,
+                            observe_gripper_command=observe_gripper_command)
     base_env.set_seed(seed)
     env = TransformedEnv(base_env, StepCounter())
     env.append_transform(InitTracker(init_key="is_init"))

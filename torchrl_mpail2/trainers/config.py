@@ -30,6 +30,9 @@ class TrainConfig:
     """Environment name understood by ``torchrl_mpail2.envs.make_env``."""
     obs: str = "state"
     """Observation mode (robosuite: state | pixels | external_pixels)."""
+    env_kwargs: dict | None = None
+    """Extra keyword arguments of ``make_env`` (JSON on the command line), e.g. robosuite's
+    ``{"observe_gripper_command": true}`` or ``{"gripper": "binary"}``; demos are recorded with the same."""
     seed: int = 0
     """Seed of torch, the environments and the demonstrations."""
     demos: str | None = None
@@ -91,6 +94,8 @@ class TrainConfig:
         if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
             raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
                               f"not to the model-free ablation {self.ablation!r}")
+        if self.env_kwargs is not None and not isinstance(self.env_kwargs, dict):
+            raise ConfigError(f"TrainConfig.env_kwargs must be a JSON object (keyword -> value), got {self.env_kwargs!r}")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
 

@@ -52,7 +52,8 @@ def episode_outcome(episode: TensorDict) -> dict[str, float]:
 
 def default_demo_dir(cfg: ExperimentConfig) -> Path:
     t = cfg.train
-    return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}-{t.num_demos}ep-seed{t.seed}"
+    options = "".join(f"-{k}={v}" for k, v in sorted((t.env_kwargs or {}).items()))
+    return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}{options}-{t.num_demos}ep-seed{t.seed}"
 
 
 class MPAIL2Trainer:
@@ -83,7 +84,7 @@ class MPAIL2Trainer:
             from torchrl_mpail2.envs import make_env
 
             def env_fn(seed=t.seed):
-                return make_env(t.env, obs=t.obs, seed=seed)
+                return make_env(t.env, obs=t.obs, seed=seed, **(t.env_kwargs or {}))
         self.env_fn = env_fn
         self.run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -126,7 +127,7 @@ class MPAIL2Trainer:
         expert = get_expert(t.env, demo_env)
         log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
         return record_demos(demo_env, expert, t.num_demos, out=path, seed=t.seed + 1_000_000, progress=t.progress,
-                            env_id=t.env, env_kwargs={"obs": t.obs})
+                            env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
 
     def _episode_bound(self) -> int:
         """Longest possible episode, read from the environment (``horizon`` or ``max_episode_steps``)."""

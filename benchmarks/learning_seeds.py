@@ -1,0 +1,219 @@
+"""Learning over several training seeds, scored on the fixed evaluation episodes.
+
+    python benchmarks/learning_seeds.py NAME --preset lift_state --seeds 0 1 --episodes 300 --budget-min 100 \\
+        [section.field=value ...]
+    python benchmarks/learning_seeds.py NAME --summarize           # rewrite the results from the run folders
+    python benchmarks/learning_seeds.py --compare NAME [NAME ...] --out docs/results/learning/compare.png
+
+Each seed trains in its own process (``--parallel`` at a time, one torch thread each) under
+``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done, one
+with a checkpoint resumes from it, one without starts afresh. Every evaluation plays the same episodes (env seeds
+``train.eval_seed + i``, seeded planner noise), and a checkpoint is saved at each, so the maximum over the
+evaluations is the paper's Best (every checkpoint evaluated on the same episodes) and the final one its Last.
+
+Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
+``curve`` with the mean and std over seeds, ``best_success_any_step``, ``last_success_any_step``,
+``episodes_to_50`` / ``episodes_to_80``, ``episodes``, ``wall_time_s``, ``machine``, ``commit``, per-seed detail)
+and ``NAME.png`` (mean and std bands over seeds).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "docs" / "results" / "learning"
+THRESHOLDS = (0.5, 0.8)
+
+
+def seed_dir(runs_root: Path, name: str, seed: int) -> Path:
+    return runs_root / name / f"seed{seed}"
+
+
+def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[str] | None:
+    """The training command for one seed: None when it is done, a resume when it has a checkpoint."""
+    base = [sys.executable, "-m", "torchrl_mpail2.train"]
+    if (run_dir / "summary.json").exists():
+        return None
+    if (run_dir / "checkpoints" / "last").exists():
+        return [*base, "--resume", str(run_dir)]
+    shutil.rmtree(run_dir, ignore_errors=True)  # nothing checkpointed yet: start afresh
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    every = f"train.eval_every={args.eval_every}"
+    return [*base, "--preset", args.preset, f"train.seed={seed}", f"train.run_dir={run_dir}", "train.threads=1",
+            "train.progress=false", f"train.total_episodes={args.episodes}", f"train.max_wall_s={args.budget_min * 60}",
+            every, f"train.checkpoint_every={args.eval_every}", f"train.eval_episodes={args.eval_episodes}", *overrides]
+
+
+def run_seeds(args, overrides: list[str]) -> None:
+    pending = [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds]
+    running: list[tuple[int, subprocess.Popen]] = []
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    while pending or running:
+        while pending and len(running) < args.parallel:
+            seed, run_dir = pending.pop(0)
+            cmd = seed_command(run_dir, seed, args, overrides)
+            if cmd is None:
+                print(f"seed {seed}: done already ({run_dir})", flush=True)
+                continue
+            log = open(run_dir.parent / f"seed{seed}.log", "a")
+            print(f"seed {seed}: {' '.join(cmd)}", flush=True)
+            running.append((seed, subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)))
+        time.sleep(5)
+        for seed, proc in list(running):
+            if proc.poll() is not None:
+                print(f"seed {seed}: exited with {proc.returncode}", flush=True)
+                running.remove((seed, proc))
+
+
+def _read_jsonl(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:  # a torn last line of a killed run
+            pass
+    return rows
+
+
+def _git_commit() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def summarize(name: str, runs_root: Path) -> dict:
+    """Aggregates the seeds' evaluations into the results JSON and the curves PNG."""
+    seeds = {}
+    for run_dir in sorted((runs_root / name).glob("seed*")):
+        if not run_dir.is_dir() or not (run_dir / "config.json").exists():
+            continue
+        evals = [e for e in _read_jsonl(run_dir / "eval.jsonl") if "success_rate_any_step" in e]
+        episodes = _read_jsonl(run_dir / "metrics.jsonl")
+        summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
+        seeds[int(run_dir.name.removeprefix("seed"))] = {
+            "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
+            "finished": bool(summary), "wall_time_s": summary.get("wall_time_s")}
+    if not seeds:
+        raise SystemExit(f"no runs under {runs_root / name}")
+    common = sorted(set.intersection(*[{e["episode"] for e in s["evals"]} for s in seeds.values()]))
+    curve = []
+    for episode in common:
+        rows = [next(e for e in s["evals"] if e["episode"] == episode) for s in seeds.values()]
+        anys = [r["success_rate_any_step"] for r in rows]
+        curve.append({"episode": episode, "success_any_step_mean": statistics.fmean(anys),
+                      "success_any_step_std": statistics.pstdev(anys),
+                      "success_last_step_mean": statistics.fmean(r["success_rate"] for r in rows),
+                      "seeds": len(rows)})
+
+    def first_reaching(level: float):
+        return next((c["episode"] for c in curve if c["success_any_step_mean"] >= level), None)
+
+    per_seed = {s: {"episodes": len(d["episodes"]), "finished": d["finished"], "wall_time_s": d["wall_time_s"],
+                    "best_success_any_step": max((e["success_rate_any_step"] for e in d["evals"]), default=None),
+                    "last_success_any_step": d["evals"][-1]["success_rate_any_step"] if d["evals"] else None,
+                    "last_success_last_step": d["evals"][-1]["success_rate"] if d["evals"] else None,
+                    "last_eval_episode": d["evals"][-1]["episode"] if d["evals"] else None,
+                    "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
+                                    for e in d["evals"]],
+                    "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0])}
+                for s, d in seeds.items()}
+    usable = [p for p in per_seed.values() if p["best_success_any_step"] is not None]
+    config = next(iter(seeds.values()))["config"]
+    t = config["train"]
+    result = {
+        "name": name, "task": t["env"], "obs": t["obs"], "config": config, "seeds": sorted(seeds),
+        "eval_episodes": t["eval_episodes"], "eval_seeds": f"{t['eval_seed']} .. {t['eval_seed'] + t['eval_episodes'] - 1}",
+        "curve": curve,
+        "best_success_any_step": statistics.fmean(p["best_success_any_step"] for p in usable) if usable else None,
+        "last_success_any_step": statistics.fmean(p["last_success_any_step"] for p in usable) if usable else None,
+        "last_success_last_step": statistics.fmean(p["last_success_last_step"] for p in usable) if usable else None,
+        "episodes_to_50": first_reaching(0.5), "episodes_to_80": first_reaching(0.8),
+        "episodes": [per_seed[s]["episodes"] for s in sorted(per_seed)],
+        "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
+        "all_finished": all(p["finished"] for p in per_seed.values()),
+        "machine": {"platform": platform.platform(), "cores": os.cpu_count(), "torch_threads_per_seed": t["threads"]},
+        "commit": _git_commit(), "per_seed": per_seed,
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
+    plot_curves({name: result}, RESULTS / f"{name}.png", per_seed_lines=True)
+    return result
+
+
+def plot_curves(results: dict[str, dict], out: Path, per_seed_lines: bool = False) -> Path:
+    """Any-step evaluation success (mean and std band over seeds) against training episodes, one line per name."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, (name, r) in enumerate(results.items()):
+        color = f"C{i}"
+        x = [c["episode"] for c in r["curve"]]
+        mean = [c["success_any_step_mean"] for c in r["curve"]]
+        std = [c["success_any_step_std"] for c in r["curve"]]
+        ax.plot(x, mean, marker="o", color=color, label=f"{name} (any step, {len(r['seeds'])} seeds)")
+        ax.fill_between(x, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)], color=color, alpha=0.2)
+        ax.plot(x, [c["success_last_step_mean"] for c in r["curve"]], ls="--", color=color, alpha=0.8,
+                label=f"{name} (last step)")
+        if per_seed_lines:
+            for seed, p in r["per_seed"].items():
+                ev = p["evaluations"]
+                ax.plot([e["episode"] for e in ev], [e["success_rate_any_step"] for e in ev], color=color, lw=0.7,
+                        alpha=0.4)
+    ax.set_xlabel("training episode")
+    ax.set_ylabel(f"evaluation success ({next(iter(results.values()))['eval_episodes']} fixed episodes)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(f"{next(iter(results.values()))['task']}: mean and std over seeds", fontsize=9)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", nargs="?")
+    p.add_argument("--preset", default="lift_state")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--episodes", type=int, default=300)
+    p.add_argument("--budget-min", type=float, default=100.0, help="wall-clock budget of each seed (per launch)")
+    p.add_argument("--eval-every", type=int, default=50)
+    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--parallel", type=int, default=2)
+    p.add_argument("--runs-root", type=Path, default=ROOT / "runs" / "learning")
+    p.add_argument("--summarize", action="store_true", help="only rewrite the results from the run folders")
+    p.add_argument("--compare", nargs="+", metavar="NAME", help="plot the curves of these results together")
+    p.add_argument("--out", type=Path, help="output PNG of --compare")
+    args, overrides = p.parse_known_args()
+    if args.compare:
+        results = {n: json.loads((RESULTS / f"{n}.json").read_text()) for n in args.compare}
+        print(plot_curves(results, args.out or RESULTS / "compare.png"))
+        return
+    if not args.name:
+        p.error("NAME is required")
+    if not args.summarize:
+        run_seeds(args, overrides)
+    result = summarize(args.name, args.runs_root)
+    print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
