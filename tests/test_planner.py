@@ -185,3 +185,37 @@ def test_warmup_switch_reports_the_planners_statistics_per_episode():
     assert planner.cfg.std_min <= stats["plan_std"] <= planner.cfg.std_max
     assert stats["actions_per_s"] > 0
     assert actor.pop_stats() == {}  # reset after reading
+
+
+class LinearQ(nn.Module):
+    """Q(z, a) = sum(z) + 10 sum(a): tells which latent and which action closed the return."""
+
+    num_q = 5
+
+    def forward(self, z, a, heads=None):
+        q = (z.sum(-1, keepdim=True) + 10 * a.sum(-1, keepdim=True)).unsqueeze(0)
+        return q.expand(2 if heads is not None else 5, *q.shape[1:])
+
+
+@pytest.mark.parametrize("terminal_value", ["policy_action", "plan_last_action"])
+def test_terminal_value_forms_score_by_hand(terminal_value):
+    planner, _ = known_planner(terminal_value=terminal_value, gamma=0.5)
+    planner.components.value.module.net = LinearQ()
+    z = torch.zeros(1, 2)
+    plan = torch.tensor([[[0.1, 0.0], [0.0, 0.2], [0.3, 0.3]]])  # [B=1, H=3, A=2]; one candidate
+    returns = planner.score(z, plan.unsqueeze(1), torch.tensor([0, 1]))
+    latents = torch.cumsum(plan[0], 0)  # z_1, z_2, z_3 under z' = z + a
+    r = -(latents - GOAL).pow(2).sum(-1)
+    if terminal_value == "policy_action":  # H rewards, Q at z_H with the policy's first action (zeros here)
+        expected = r[0] + 0.5 * r[1] + 0.25 * r[2] + 0.125 * latents[2].sum()
+    else:  # H - 1 rewards, Q at z_{H-1} with the plan's own last action
+        expected = r[0] + 0.5 * r[1] + 0.25 * (latents[1].sum() + 10 * plan[0, 2].sum())
+    assert returns.shape == (1, 1)
+    assert returns.item() == pytest.approx(expected.item(), rel=1e-5)
+
+
+def test_effective_number_of_elites_is_logged_between_one_and_k():
+    planner, _ = known_planner()
+    planner(obs([0.0, 0.0]))
+    ess = planner.last_stats["elite_ess"].item()
+    assert 1.0 <= ess <= planner.cfg.num_elites

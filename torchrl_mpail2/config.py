@@ -84,6 +84,8 @@ class LossConfig:
     """Form of the imagined return of the value target and the actor: ``paper`` (Eq. 6 as printed), ``authors``
     (lambda q_0 + (1 - lambda) TD(lambda), the authors' code) or ``td_lambda`` (the standard TD(lambda) return);
     see :func:`torchrl_mpail2.functional.multi_step_return`."""
+    actor_q_reduce: str = "mean"
+    """How the actor's objective combines its two random Q heads: ``mean`` (TD-MPC2) or ``min`` (the authors' code)."""
     rho: float = 0.95
     """Temporal discount rho of the multi-step latent prediction loss (Eq. 2)."""
     gp_coef: float = 0.1
@@ -118,6 +120,8 @@ class LossConfig:
         _check_unit_interval(self, "rho", closed=False)
         from torchrl_mpail2.functional import RETURN_FORMS
 
+        if self.actor_q_reduce not in ("mean", "min"):
+            raise ConfigError(f"LossConfig.actor_q_reduce must be 'mean' or 'min', got {self.actor_q_reduce!r}")
         if self.return_form not in RETURN_FORMS:
             raise ConfigError(f"unknown LossConfig.return_form {self.return_form!r}; choose from {RETURN_FORMS}")
         _check_positive(self, "init_alpha", "lr", "encoder_lr", "alpha_lr", "value_grad_clip", "policy_grad_clip")
@@ -127,6 +131,10 @@ class LossConfig:
             raise ConfigError(f"LossConfig.transitions_per_window must be >= 1 or None, got {self.transitions_per_window}")
         if self.reward_scale_momentum is not None and not 0.0 <= self.reward_scale_momentum < 1.0:
             raise ConfigError(f"LossConfig.reward_scale_momentum must be in [0, 1) or None, got {self.reward_scale_momentum}")
+
+
+#: Forms of the planner's terminal value (:attr:`PlannerConfig.terminal_value`).
+TERMINAL_VALUES = ("policy_action", "plan_last_action")
 
 
 @dataclass
@@ -151,6 +159,10 @@ class PlannerConfig:
     """Discount of the planned return."""
     bf16: bool = False
     """Run the planner's matmuls under bfloat16 autocast (faster on CPUs with AVX-512 bf16)."""
+    terminal_value: str = "policy_action"
+    """How a plan's return is closed: ``policy_action`` (H rewards + gamma^H Q(z_H, pi(z_H)), TD-MPC2's form) or
+    ``plan_last_action`` (H - 1 rewards + gamma^(H-1) Q(z_{H-1}, a_{H-1}), the authors' code: Q scores the plan's
+    own last action)."""
 
     def __post_init__(self) -> None:
         _check_positive(self, "num_candidates", "num_elites", "iterations", "temperature", "std_min", "std_max")
@@ -159,6 +171,8 @@ class PlannerConfig:
             raise ConfigError(
                 f"PlannerConfig.num_elites ({self.num_elites}) cannot exceed num_candidates ({self.num_candidates})"
             )
+        if self.terminal_value not in TERMINAL_VALUES:
+            raise ConfigError(f"unknown PlannerConfig.terminal_value {self.terminal_value!r}; choose from {TERMINAL_VALUES}")
         if self.std_min > self.std_max:
             raise ConfigError(f"PlannerConfig.std_min ({self.std_min}) must not exceed std_max ({self.std_max})")
 

@@ -27,11 +27,11 @@ class MultiStepActorLoss(MPAIL2LossBase):
     The log-probability is taken per action step (divided by ``H``) so that the target entropy
     :math:`\bar{\mathcal H} = -|\mathcal A|` applies per step (Table 4). Dynamics, reward and Q are
     evaluated with frozen parameters: gradients reach only the policy (and ``log_alpha`` through
-    ``loss_alpha``). ``G`` uses the online Q, mean of two random heads.
+    ``loss_alpha``). ``G`` uses the online Q, mean (or ``q_reduce="min"``) of two random heads.
 
     Keyword Args:
         gamma, lmbda (float): as in Eq. 6. return_form (str): form of the imagined return, one of ``RETURN_FORMS``.
-        init_alpha (float): initial temperature.
+        q_reduce (str): ``mean`` (default) or ``min`` of the two Q heads in ``G``. init_alpha (float): initial temperature.
         target_entropy_per_step (float, optional): default ``-A``.
 
     Returns: ``loss_actor``, ``loss_alpha`` and detached ``alpha``, ``entropy`` (per step, ``-log pi / H``),
@@ -45,7 +45,8 @@ class MultiStepActorLoss(MPAIL2LossBase):
 
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
-                 gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", init_alpha: float = 1e-3,
+                 gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", q_reduce: str = "mean",
+                 init_alpha: float = 1e-3,
                  target_entropy_per_step: float | None = None, reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.policy_network = policy_network
@@ -57,6 +58,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         self.target_entropy = float(-action_dim if target_entropy_per_step is None else target_entropy_per_step)
         self.gamma, self.lmbda = gamma, lmbda
         self.return_form = _checked_form(return_form)
+        self.q_reduce = q_reduce
 
     def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
         z = latents[0] if latents is not None else self.replay_latents(tensordict)[0]
@@ -67,7 +69,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         qnet = self.qvalue_network.net
         with frozen(self.dynamics_network, self.reward_network, self.qvalue_network):
             G = imagined_lambda_return(z, plan, self.dynamics_network.module, self.reward_network.module,
-                                       ensemble_estimate(qnet, "mean"), policy, self.gamma, self.lmbda,
+                                       ensemble_estimate(qnet, self.q_reduce), policy, self.gamma, self.lmbda,
                                        self.return_form)
         alpha = self.log_alpha.exp().detach()
         loss_actor = self.reduce(alpha * log_prob_step - G)

@@ -59,7 +59,8 @@ class MPAIL2Loss(MPAIL2LossBase):
                                                 lmbda=cfg.lmbda, return_form=cfg.return_form,
                                                 mask_terminal=cfg.mask_terminal)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
-                                             lmbda=cfg.lmbda, return_form=cfg.return_form, init_alpha=cfg.init_alpha,
+                                             lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
+                                             init_alpha=cfg.init_alpha,
                                              target_entropy_per_step=cfg.target_entropy_per_step)
 
     def set_keys(self, **kwargs) -> None:

@@ -31,7 +31,9 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     .. math:: \mathcal R = \sum_{k=0}^{H-1}\gamma^k r_\theta(\hat z_k, \hat z_{k+1}) + \gamma^H Q_\zeta(\hat z_H, a_H),
 
-    with :math:`a_H` the first step of the policy mean at :math:`\hat z_H` and Q the mean of two random heads.
+    with :math:`a_H` the first step of the policy mean at :math:`\hat z_H` and Q the mean of two random heads
+    (``cfg.terminal_value="plan_last_action"``: ``H - 1`` rewards and :math:`\gamma^{H-1} Q(\hat z_{H-1}, a_{H-1})`,
+    as in the authors' code).
     The ``K`` best plans set the next mean and std (softmax weights at temperature :math:`\eta`,
     max-subtracted; std clipped to :math:`[\sigma_{min}, \sigma_{max}]`), for ``J`` iterations.
 
@@ -126,14 +128,19 @@ class LatentMPPIPlanner(MPCPlannerBase):
         zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         actions = plans.to(z.dtype).reshape(batch * num, self.horizon, self.action_dim)
         total = torch.zeros(batch * num, dtype=torch.float32, device=z.device)
-        for k in range(self.horizon):
+        # with the plan's own last action scoring the end, the last reward is left to Q
+        rewarded = self.horizon - (cfg.terminal_value == "plan_last_action")
+        for k in range(rewarded):
             zk = dynamics(zk, actions[:, k])
             h_now_next, h_next = reward.project(zk)
             total = total + cfg.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
             h_now = h_now_next
-        last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
+        if rewarded < self.horizon:
+            last_action = actions[:, rewarded]
+        else:
+            last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
-        return (total + cfg.gamma ** self.horizon * q).view(batch, num)
+        return (total + cfg.gamma ** rewarded * q).view(batch, num)
 
     # ---- Algorithm 2 ------------------------------------------------------------------------------
     def _planning_networks(self) -> tuple[nn.Module, ...]:
@@ -205,5 +212,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         influence = (weights * (elite_index >= num_gauss)).sum(-1, keepdim=True)
         plan = mean if is_deterministic() else (mean + std * self._noise(mean.shape, mean)).clamp(-1.0, 1.0)
         self.last_stats = {"policy_influence": influence.mean(), "elite_return": returns.gather(1, elite_index).mean(),
-                           "plan_std": std.mean()}
+                           "plan_std": std.mean(),
+                           # effective number of elites 1 / sum w^2: K when the weights are flat, 1 when one plan wins
+                           "elite_ess": weights.pow(2).sum(-1).reciprocal().mean()}
         return mean, plan, influence

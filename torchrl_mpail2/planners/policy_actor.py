@@ -48,7 +48,7 @@ class WarmupSwitch(TensorDictModuleBase):
     """
 
     #: planner statistics the trainer logs (``policy_influence`` comes per step from the tensordict)
-    PLANNER_STATS = ("elite_return", "plan_std")
+    PLANNER_STATS = ("elite_return", "plan_std", "elite_ess")
 
     def __init__(self, actor: TensorDictModuleBase, action_spec, random_actions: bool = False):
         super().__init__()

@@ -10,7 +10,7 @@ from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, read_jsonl
 GROUPS = {
     "loss_": "losses", "reward_": "reward", "grad_penalty": "reward", "expert_accuracy": "reward",
     "q_": "value", "learned_reward_mean": "value", "alpha": "policy", "entropy": "policy", "imagined_return": "policy",
-    "policy_influence": "planner", "elite_return": "planner", "plan_std": "planner",
+    "policy_influence": "planner", "elite_return": "planner", "plan_std": "planner", "elite_ess": "planner",
     "success": "environment", "task_return": "environment", "normalized_return": "environment", "length": "environment",
     "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed",
     "dynamics_error_last": "losses", "nonfinite_skips": "losses",
