@@ -38,10 +38,27 @@ def seed_dir(runs_root: Path, name: str, seed: int) -> Path:
     return runs_root / name / f"seed{seed}"
 
 
+#: Continues a run from its last checkpoint for ``--extend-min`` more minutes (the CLI resumes with the saved budget).
+EXTEND = ("import sys; from torchrl_mpail2.trainers import MPAIL2Trainer; t = MPAIL2Trainer.resume(sys.argv[1]); "
+          "t.cfg.train.max_wall_s = float(sys.argv[2]); t.train()")
+
+
+def _episodes_done(run_dir: Path) -> int:
+    return len(_read_jsonl(run_dir / "metrics.jsonl"))
+
+
 def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[str] | None:
-    """The training command for one seed: None when it is done, a resume when it has a checkpoint."""
+    """The training command for one seed: None when it is done, a resume when it has a checkpoint.
+
+    A seed that stopped at its wall-clock budget short of ``--episodes`` counts as done, unless ``--extend-min``
+    asks for more time: then it resumes from its last checkpoint for that long.
+    """
     base = [sys.executable, "-m", "torchrl_mpail2.train"]
     if (run_dir / "summary.json").exists():
+        if args.extend_min and _episodes_done(run_dir) < args.episodes:
+            # the earlier part's summary is kept so that the seed's wall time adds up over its parts
+            (run_dir / "summary.json").rename(run_dir / f"summary.part{len(list(run_dir.glob('summary.part*.json')))}.json")
+            return [sys.executable, "-c", EXTEND, str(run_dir), str(args.extend_min * 60)]
         return None
     if (run_dir / "checkpoints" / "last").exists():
         return [*base, "--resume", str(run_dir)]
@@ -103,9 +120,11 @@ def summarize(name: str, runs_root: Path) -> dict:
         evals = [e for e in _read_jsonl(run_dir / "eval.jsonl") if "success_rate_any_step" in e]
         episodes = _read_jsonl(run_dir / "metrics.jsonl")
         summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
+        parts = [json.loads(f.read_text()) for f in run_dir.glob("summary.part*.json")]
+        wall = sum(p["wall_time_s"] for p in parts) + summary.get("wall_time_s", 0.0) if summary else None
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
-            "finished": bool(summary), "wall_time_s": summary.get("wall_time_s")}
+            "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary)}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
     common = sorted(set.intersection(*[{e["episode"] for e in s["evals"]} for s in seeds.values()]))
@@ -195,6 +214,8 @@ def main() -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--episodes", type=int, default=300)
     p.add_argument("--budget-min", type=float, default=100.0, help="wall-clock budget of each seed (per launch)")
+    p.add_argument("--extend-min", type=float, default=0.0,
+                   help="resume seeds that stopped at their budget short of --episodes for this many more minutes")
     p.add_argument("--eval-every", type=int, default=50)
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--parallel", type=int, default=2)

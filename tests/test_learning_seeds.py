@@ -1,0 +1,58 @@
+"""The multi-seed learning benchmark aggregates seeds' fixed-episode evaluations correctly."""
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture()
+def bench(tmp_path, monkeypatch):
+    spec = importlib.util.spec_from_file_location("learning_seeds", ROOT / "benchmarks" / "learning_seeds.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "RESULTS", tmp_path / "results")
+    return module
+
+
+def _fake_seed(root, seed, evals, finished=True, episodes=100):
+    run = root / "demo" / f"seed{seed}"
+    run.mkdir(parents=True)
+    config = {"train": {"env": "robosuite/Lift", "obs": "state", "eval_episodes": 20, "eval_seed": 2_000_000,
+                        "threads": 1, "seed": seed}}
+    (run / "config.json").write_text(json.dumps(config))
+    (run / "eval.jsonl").write_text("".join(
+        json.dumps({"episode": e, "success_rate_any_step": a, "success_rate": last, "return": 0.0}) + "\n"
+        for e, a, last in evals) + '{"episode": 99, "succ')  # a torn last line is ignored
+    (run / "metrics.jsonl").write_text("".join(json.dumps({"episode": i + 1, "update_ms": 10.0}) + "\n"
+                                               for i in range(episodes)))
+    if finished:
+        (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0}))
+
+
+def test_summary_means_bests_and_thresholds_over_seeds(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2), (100, 0.9, 0.6)])
+    _fake_seed(tmp_path, 1, [(50, 0.6, 0.4), (100, 0.5, 0.5), (150, 0.7, 0.7)], episodes=150)
+    r = bench.summarize("demo", tmp_path)
+    assert [c["episode"] for c in r["curve"]] == [50, 100]  # episodes every seed reached
+    assert r["curve"][0]["success_any_step_mean"] == pytest.approx(0.5)
+    assert r["curve"][0]["success_any_step_std"] == pytest.approx(0.1)
+    assert r["curve"][1]["success_last_step_mean"] == pytest.approx(0.55)
+    assert r["best_success_any_step"] == pytest.approx((0.9 + 0.7) / 2)  # each seed's best evaluation
+    assert r["last_success_any_step"] == pytest.approx((0.9 + 0.7) / 2)  # each seed's final evaluation
+    assert r["episodes_to_50"] == 50 and r["episodes_to_80"] is None
+    assert r["episodes"] == [100, 150] and r["seeds"] == [0, 1] and r["all_finished"]
+    assert (tmp_path / "results" / "demo.json").exists() and (tmp_path / "results" / "demo.png").exists()
+
+
+def test_a_seed_short_of_its_episodes_is_extended_only_when_asked(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2)], episodes=60)
+    run = tmp_path / "demo" / "seed0"
+    args = type("Args", (), {"episodes": 300, "extend_min": 0.0})()
+    assert bench.seed_command(run, 0, args, []) is None
+    args.extend_min = 30.0
+    cmd = bench.seed_command(run, 0, args, [])
+    assert cmd[-2:] == [str(run), "1800.0"]
+    assert not (run / "summary.json").exists() and (run / "summary.part0.json").exists()
