@@ -21,8 +21,12 @@ def _record(args: argparse.Namespace) -> None:
 
     if args.lift_speed is not None and args.env != "robosuite/Lift":
         raise SystemExit(f"--lift-speed applies to robosuite/Lift only, not {args.env}.")
+    if args.human_like and not args.env.startswith("robosuite/"):
+        raise SystemExit(f"--human-like applies to the scripted robosuite experts only, not {args.env}.")
     env = make_env(args.env, obs=args.obs, seed=args.seed)
     options = {} if args.lift_speed is None else {"max_lift_speed": args.lift_speed}
+    if args.human_like:
+        options.update(human_like=True, seed=args.seed)
     expert = get_expert(args.env, env, **options)
     demos = record_demos(
         env,
@@ -34,6 +38,7 @@ def _record(args: argparse.Namespace) -> None:
         env_id=args.env,
         env_kwargs={"obs": args.obs},
         overwrite=args.overwrite,
+        steps_after_success=args.steps_after_success,
     )
     print(f"wrote {args.out}")
     print(demos.summary())
@@ -55,6 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")
     record.add_argument("--lift-speed", type=float, default=None,
                         help="robosuite/Lift only: the scripted expert lifts at most this many metres per step")
+    record.add_argument("--human-like", action="store_true",
+                        help="scripted robosuite experts: vary speed, approach path, drift and pauses per episode")
+    record.add_argument("--steps-after-success", type=int, default=None,
+                        help="end each recording this many steps after its first success")
     record.add_argument("--overwrite", action="store_true")
     record.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     record.set_defaults(run=_record)

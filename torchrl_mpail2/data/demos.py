@@ -322,6 +322,7 @@ def record_demos(
     env_kwargs: dict | None = None,
     max_steps: int = 10_000,
     overwrite: bool = False,
+    steps_after_success: int | None = None,
 ) -> Demonstrations:
     """Rolls an expert out and keeps only the observations.
 
@@ -345,6 +346,8 @@ def record_demos(
         env_kwargs (dict, optional): how the env was built (e.g. ``{"obs": "state"}``), stored in the header.
         max_steps (int): safety cap on episode length if the env never ends an episode.
         overwrite (bool): replace an existing ``out`` directory.
+        steps_after_success (int, optional): end each recording this many steps after its first success (as a
+            teleoperator stops recording), instead of at the env's horizon. ``None`` keeps whole episodes.
 
     Examples:
         >>> from torchrl_mpail2.envs import make_env
@@ -357,6 +360,8 @@ def record_demos(
         raise ValueError(f"record_demos needs an env with an empty batch size, got {tuple(env.batch_size)}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}.")
+    if steps_after_success is not None and steps_after_success < 0:
+        raise ValueError(f"steps_after_success must be >= 0 or None, got {steps_after_success}.")
     keys = observation_keys_of(env.observation_spec)
     if env_id is None:
         env_id = type(getattr(env, "base_env", env)).__name__
@@ -373,6 +378,10 @@ def record_demos(
             if callable(getattr(expert, "reset", None)):
                 expert.reset()
             rollout = env.rollout(max_steps, policy=expert, break_when_any_done=True)
+        if steps_after_success is not None and has_success:
+            success = rollout["next", "success"].reshape(-1)
+            if success.any():
+                rollout = rollout[: int(success.float().argmax()) + 1 + steps_after_success]
         recorded.append({key: torch.cat([rollout[key], rollout["next", key][-1:]]) for key in keys})
         metadata.append(
             {

@@ -17,6 +17,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from torchrl_mpail2.envs.robosuite_env import MAX_EEF_DELTA, RobosuiteEnv
+from torchrl_mpail2.experts.human_like import HumanLikeMotion
 
 GRIPPER_OPEN = -1.0
 GRIPPER_CLOSE = 1.0
@@ -37,11 +38,13 @@ def _move_towards(eef_pos: np.ndarray, target: np.ndarray, gain: float = 1.5) ->
 
 
 class _ScriptedExpert(TensorDictModuleBase):
-    """Shared plumbing: privileged-state lookup, optional Gaussian action noise, writing ``"action"``."""
+    """Shared plumbing: privileged-state lookup, optional Gaussian action noise or human-like motion, writing
+    ``"action"``. With ``human_like`` the position commands get a per-episode style (:mod:`.human_like`),
+    redrawn at every :meth:`reset` (the demo recorder calls it before each episode)."""
 
     tasks: tuple[str, ...] = ()
 
-    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None):
+    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, human_like: bool = False):
         super().__init__()
         self.env = _find_robosuite_env(env)
         if self.env.task not in self.tasks:
@@ -50,12 +53,20 @@ class _ScriptedExpert(TensorDictModuleBase):
         self.out_keys = ["action"]
         self.noise_std = noise_std
         self._rng = np.random.default_rng(seed)
+        self.motion = HumanLikeMotion(self._rng) if human_like else None
+
+    def reset(self) -> None:
+        """Starts a new episode (a new human-like style, if any)."""
+        if self.motion is not None:
+            self.motion.reset()
 
     def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
         raise NotImplementedError
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self.scripted_action(self.env.privileged_state())
+        if self.motion is not None:
+            action = np.concatenate([np.clip(self.motion.shape(action[:3]), -1.0, 1.0), action[3:]])
         if self.noise_std > 0:
             action = np.clip(action + self.noise_std * self._rng.standard_normal(action.shape), -1.0, 1.0)
         action = torch.as_tensor(action, dtype=torch.float32, device=self.env.device)
@@ -79,7 +90,8 @@ class LiftExpert(_ScriptedExpert):
 
     Keyword Args:
         noise_std: std of Gaussian noise added to the action (diversifies demonstrations).
-        seed: seed of that noise.
+        seed: seed of that noise (and of the human-like styles).
+        human_like: vary speed, approach path (a via point beside the cube), drift and pauses per episode.
         max_lift_speed: cap on the upward command while holding the cube, in metres per step (``None``: no cap,
             the arm rises at up to 5 cm per step). A slow lift fills the demonstrations with grasped cubes at
             every height between the table and the lift height instead of jumping past them in two steps.
@@ -91,8 +103,9 @@ class LiftExpert(_ScriptedExpert):
     aligned_tolerance = 0.01
     shut_opening = 0.01  # finger opening below which the grasp missed
 
-    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, max_lift_speed: float | None = None):
-        super().__init__(env, noise_std=noise_std, seed=seed)
+    def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, max_lift_speed: float | None = None,
+                 human_like: bool = False):
+        super().__init__(env, noise_std=noise_std, seed=seed, human_like=human_like)
         if max_lift_speed is not None and not 0.0 < max_lift_speed <= MAX_EEF_DELTA:
             raise ValueError(f"max_lift_speed must lie in (0, {MAX_EEF_DELTA}] metres per step, got {max_lift_speed}.")
         self.max_lift_speed = max_lift_speed
@@ -117,7 +130,8 @@ class LiftExpert(_ScriptedExpert):
             # Hold still while the fingers close: moving now would knock the cube away.
             return np.append(_move_towards(eef, cube), GRIPPER_CLOSE)
         if horizontal_error > self.aligned_tolerance:
-            target = np.array([cube[0], cube[1], max(eef[2], cube[2] + self.hover_clearance)])
+            target_xy = cube[:2] if self.motion is None else self.motion.via_point(cube[:2], eef[:2])
+            target = np.array([*target_xy, max(eef[2], cube[2] + self.hover_clearance)])
         else:
             target = cube
         return np.append(_move_towards(eef, target), GRIPPER_OPEN)
@@ -138,7 +152,8 @@ class PushExpert(_ScriptedExpert):
 
     Keyword Args:
         noise_std: std of Gaussian noise added to the action (diversifies demonstrations).
-        seed: seed of that noise.
+        seed: seed of that noise (and of the human-like styles).
+        human_like: vary speed, drift and pauses per episode.
     """
 
     tasks = ("Push", "PushMirrored")

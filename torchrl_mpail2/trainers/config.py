@@ -39,6 +39,11 @@ class TrainConfig:
     """Path of a demonstration directory; None records scripted-expert demos into demos/ on first use."""
     num_demos: int = 10
     """Number of expert episodes recorded when ``demos`` is None."""
+    expert_kwargs: dict | None = None
+    """Options of the scripted expert that records the demos (JSON on the command line), e.g.
+    ``{"human_like": true}`` (per-episode speed, approach path, drift and pauses) or ``{"max_lift_speed": 0.005}``."""
+    demo_steps_after_success: int | None = None
+    """End each recorded demonstration this many steps after its first success (None: whole episodes)."""
     total_episodes: int = 200
     """Training episodes (warm-up included)."""
     warmup_episodes: int = 2
@@ -94,8 +99,12 @@ class TrainConfig:
         if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
             raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
                               f"not to the model-free ablation {self.ablation!r}")
-        if self.env_kwargs is not None and not isinstance(self.env_kwargs, dict):
-            raise ConfigError(f"TrainConfig.env_kwargs must be a JSON object (keyword -> value), got {self.env_kwargs!r}")
+        for name in ("env_kwargs", "expert_kwargs"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, dict):
+                raise ConfigError(f"TrainConfig.{name} must be a JSON object (keyword -> value), got {value!r}")
+        if self.demo_steps_after_success is not None and self.demo_steps_after_success < 0:
+            raise ConfigError(f"TrainConfig.demo_steps_after_success must be >= 0 or None, got {self.demo_steps_after_success}")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
 

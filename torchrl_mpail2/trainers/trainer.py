@@ -52,7 +52,9 @@ def episode_outcome(episode: TensorDict) -> dict[str, float]:
 
 def default_demo_dir(cfg: ExperimentConfig) -> Path:
     t = cfg.train
-    options = "".join(f"-{k}={v}" for k, v in sorted((t.env_kwargs or {}).items()))
+    options = "".join(f"-{k}={v}" for k, v in sorted({**(t.env_kwargs or {}), **(t.expert_kwargs or {})}.items()))
+    if t.demo_steps_after_success is not None:
+        options += f"-stop{t.demo_steps_after_success}"
     return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}{options}-{t.num_demos}ep-seed{t.seed}"
 
 
@@ -124,9 +126,12 @@ class MPAIL2Trainer:
         if path.exists():
             return load_demos(path, self.env.observation_spec)
         demo_env = self.env_fn(seed=t.seed + 1_000_000)
-        expert = get_expert(t.env, demo_env)
+        # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
+        options = {"seed": t.seed + 1_000_000, **t.expert_kwargs} if t.expert_kwargs else {}
+        expert = get_expert(t.env, demo_env, **options)
         log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
         return record_demos(demo_env, expert, t.num_demos, out=path, seed=t.seed + 1_000_000, progress=t.progress,
+                            steps_after_success=t.demo_steps_after_success,
                             env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
 
     def _episode_bound(self) -> int:
