@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field, fields
+from typing import ClassVar
 
-from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
+from torchrl_mpail2.config import (
+    AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, check_fields,
+    field_kind,
+)
 
 #: Ablations of the paper's Table 2, as switches of one config.
 ABLATIONS = {
@@ -51,13 +55,17 @@ class TrainConfig:
     eval_episodes: int = 10
     """Episodes per evaluation, deterministic planner."""
     checkpoint_every: int = 10
-    """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too)."""
+    """Write a numbered checkpoint every this many episodes (0: never)."""
+    last_every: int = 5
+    """Write ``checkpoints/last`` (with the replay buffer) every this many episodes, evaluations aside, so that a
+    crash loses at most this many episodes (0: only at evaluations)."""
     success_window: int = 25
     """Moving window (episodes) of the logged training success rate."""
     run_dir: str | None = None
     """Run folder; None makes runs/<env>-<seed>-<time>."""
     replay_size: int | None = None
-    """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded buffer."""
+    """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded
+    buffer (sized from the episode budget when the run is built, so a resumed run with a larger budget gets more)."""
     logger: str = "csv"
     """csv | wandb | tensorboard | none."""
     ablation: str = "none"
@@ -71,16 +79,19 @@ class TrainConfig:
     computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
     optimiser). See docs/results/speed_notes.md for speed and closeness."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
+        "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
+        "eval_episodes": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
+        "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,
+    }
+
     def __post_init__(self) -> None:
+        check_fields(self)
         if self.ablation not in ABLATIONS:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
-        for name in ("total_episodes", "batch_size", "eval_episodes", "success_window", "num_demos"):
-            if getattr(self, name) <= 0:
-                raise ConfigError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)}")
-        if self.warmup_episodes < 0 or self.warmup_episodes >= self.total_episodes:
+        if self.warmup_episodes >= self.total_episodes:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
-        if self.utd <= 0:
-            raise ConfigError(f"TrainConfig.utd must be > 0, got {self.utd}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
         if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
@@ -126,30 +137,42 @@ def _build(section_cls, values: dict):
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise ConfigError(f"unknown {section_cls.__name__} field(s) {unknown}; known: {sorted(known)}")
-    defaults = section_cls()
-    kwargs = {k: tuple(v) if isinstance(getattr(defaults, k), tuple) and isinstance(v, list) else v for k, v in values.items()}
+    kwargs = {k: tuple(v) if field_kind(section_cls, k).is_tuple and isinstance(v, list) else v for k, v in values.items()}
     return section_cls(**kwargs)
 
 
-def _parse_value(text: str, current):
-    if text.lower() == "null" or (text.lower() == "none" and not isinstance(current, str)):
-        return None
-    if isinstance(current, bool):
+def _parse_scalar(text: str, base: type | None):
+    """``text`` as ``base`` (bool, int, float, str; JSON or the text itself when untyped); ValueError if it is not one."""
+    if base is bool:
         if text.lower() in ("1", "true", "yes"):
             return True
         if text.lower() in ("0", "false", "no"):
             return False
-        raise ConfigError(f"expected a boolean, got {text!r}")
-    if isinstance(current, tuple):
-        return tuple(_parse_value(t, current[0] if current else 0) for t in text.split(",") if t)
-    if isinstance(current, int):
-        return int(text)
-    if isinstance(current, float):
-        return float(text)
+        raise ValueError(text)
+    if base in (int, float):
+        return base(text)
+    if base is str:
+        return text
     try:
-        return json.loads(text) if current is None and text[:1] in "0123456789-[{" else text
+        return json.loads(text) if text[:1] in "0123456789-[{" else text
     except json.JSONDecodeError:
         return text
+
+
+def _parse_value(text: str, section_cls: type, section: str, name: str):
+    """``text`` of an override of ``section.name`` as the field's annotated type (errors name field, value and type)."""
+    kind = field_kind(section_cls, name)
+    if kind.optional and text.lower() in ("null", "none"):
+        return None
+    items = [t.strip() for t in text.split(",") if t.strip()] if kind.is_tuple else [text]
+    parsed = []
+    for item in items:
+        try:
+            parsed.append(_parse_scalar(item, kind.base))
+        except ValueError:
+            which = f" (item {item!r})" if kind.is_tuple else ""
+            raise ConfigError(f"{section}.{name}={text!r}{which}: expected {kind.describe()}") from None
+    return tuple(parsed) if kind.is_tuple else parsed[0]
 
 
 def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
@@ -182,7 +205,6 @@ def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentCo
             raise ConfigError(f"unknown config section {section!r} in override {path!r}; sections: {sorted(data)}")
         if name not in data[section]:
             raise ConfigError(f"unknown field {section}.{name}; known: {sorted(data[section])}")
-        current = getattr(getattr(cfg, section), name)
-        data[section][name] = _parse_value(text, current)
+        data[section][name] = _parse_value(text, type(getattr(cfg, section)), section, name)
     return ExperimentConfig.from_dict(data)
 
