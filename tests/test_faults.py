@@ -55,3 +55,60 @@ def test_a_config_file_with_a_wrongly_typed_value_names_the_field():
 def test_every_numeric_config_field_declares_its_range(cls):
     numeric = [f.name for f in fields(cls) if field_kind(cls, f.name).numeric]
     assert numeric and sorted(set(numeric) - set(cls.RANGES)) == []
+
+
+# ---- demonstrations ----------------------------------------------------------------------------------
+def _demos_with_nan():
+    import torch
+
+    from torchrl_mpail2.data import demos_from_arrays
+
+    demos = demos_from_arrays([torch.zeros(4, 2), torch.ones(3, 2), torch.ones(5, 2)], env_id="toy")
+    demos.observations["observation"][4 + 3 + 1] = float("nan")  # episode 2, step 1
+    return demos
+
+
+def test_nan_or_inf_in_demonstrations_is_refused_when_recorded_naming_key_and_episode():
+    import torch
+
+    from torchrl_mpail2.data import demos_from_arrays, record_demos
+    from torchrl_mpail2.envs import PointMassEnv, with_bookkeeping
+    from torchrl_mpail2.experts import PointMassExpert
+
+    with pytest.raises(ValueError, match=r"'observation' holds NaN or Inf in episode\(s\) \[1\]"):
+        demos_from_arrays([torch.zeros(4, 2), torch.tensor([[0.0, 0.0], [float("inf"), 0.0]])])
+
+    class Diverging(PointMassEnv):
+        steps = 0
+
+        def _step(self, tensordict):
+            out = super()._step(tensordict)
+            Diverging.steps += 1
+            if Diverging.steps == 50 + 7:  # inside the second episode
+                out["observation"][0] = float("nan")
+            return out
+
+    with pytest.raises(ValueError, match=r"'observation' holds NaN or Inf in episode\(s\) \[1\]"):
+        record_demos(with_bookkeeping(Diverging(seed=0)), PointMassExpert(), episodes=2, progress=False)
+
+
+def test_nan_in_demonstrations_is_refused_when_saved_and_when_loaded(tmp_path):
+    from tensordict import TensorDict
+
+    from torchrl_mpail2.data import DemoFormatError, demos_from_arrays, load_demos, save_demos
+    from torchrl_mpail2.data.checksums import folder_manifest
+    import json
+    import torch
+
+    with pytest.raises(ValueError, match=r"Not saving demonstrations to .*bad.*'observation' holds NaN or Inf in episode\(s\) \[2\]"):
+        save_demos(_demos_with_nan(), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
+    # data written with NaN by other means (its checksums match): loading names the key and the episode
+    path = save_demos(demos_from_arrays([torch.zeros(4, 2), torch.ones(3, 2)]), tmp_path / "demos")
+    stored = TensorDict.load_memmap(path / "observations")
+    stored["observation"][5] = float("nan")
+    header = json.loads((path / "header.json").read_text())
+    header["files"] = folder_manifest(path, "observations")
+    (path / "header.json").write_text(json.dumps(header))
+    with pytest.raises(DemoFormatError, match=r"demos: observation key 'observation' holds NaN or Inf in episode\(s\) \[1\]"):
+        load_demos(path)
