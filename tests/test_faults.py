@@ -112,3 +112,211 @@ def test_nan_in_demonstrations_is_refused_when_saved_and_when_loaded(tmp_path):
     (path / "header.json").write_text(json.dumps(header))
     with pytest.raises(DemoFormatError, match=r"demos: observation key 'observation' holds NaN or Inf in episode\(s\) \[1\]"):
         load_demos(path)
+
+
+# ---- checkpoints, replay and run folders ----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    from torchrl_mpail2.data import record_demos
+    from torchrl_mpail2.envs import make_env
+    from torchrl_mpail2.experts import PointMassExpert
+
+    path = tmp_path_factory.mktemp("demos") / "pm"
+    record_demos(make_env("point_mass", seed=1), PointMassExpert(), episodes=4, out=path, progress=False)
+    return path
+
+
+def _cfg(demo_dir, *overrides):
+    return apply_overrides(preset("point_mass"), [
+        "train.progress=false", "train.logger=none", f"train.demos={demo_dir}", "train.total_episodes=2",
+        "train.warmup_episodes=1", "train.utd=0.02", "train.batch_size=8", "train.eval_every=0",
+        "train.checkpoint_every=0", "train.last_every=1", *overrides])
+
+
+def _trained(demo_dir, run, *overrides):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    MPAIL2Trainer(_cfg(demo_dir, *overrides), run_dir=run).train()
+    return run
+
+
+def _episodes_logged(run):
+    import json
+
+    return [json.loads(line)["episode"] for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_a_flipped_byte_in_a_checkpoint_is_refused_naming_the_file(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import CheckpointError
+
+    run = _trained(demo_dir, tmp_path / "run")
+    state = run / "checkpoints" / "last" / "state.pt"
+    data = bytearray(state.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    state.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match=r"last/state.pt is corrupted: its sha256 does not match"):
+        MPAIL2Trainer.resume(run)
+
+
+def test_a_truncated_stored_replay_is_refused_naming_the_file(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import CheckpointError
+
+    run = _trained(demo_dir, tmp_path / "run")
+    stored = run / "checkpoints" / "last" / "replay" / "storage" / "observation.memmap"
+    stored.write_bytes(stored.read_bytes()[: stored.stat().st_size // 4])
+    with pytest.raises(CheckpointError, match=r"observation.memmap is truncated or corrupted: \d+ bytes on disk"):
+        MPAIL2Trainer.resume(run)
+
+
+def test_a_zero_byte_state_file_is_refused_naming_the_file(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers.checkpoint import CheckpointError, read_checkpoint
+
+    run = _trained(demo_dir, tmp_path / "run")
+    state = run / "checkpoints" / "last" / "state.pt"
+    state.write_bytes(b"")
+    with pytest.raises(CheckpointError, match=r"last/state.pt is truncated or corrupted: 0 bytes on disk"):
+        read_checkpoint(run / "checkpoints" / "last")
+    (run / "checkpoints" / "last" / "manifest.json").unlink()  # a checkpoint written before manifests
+    with pytest.warns(RuntimeWarning, match="not verified"), pytest.raises(CheckpointError, match=r"state.pt cannot be read"):
+        read_checkpoint(run / "checkpoints" / "last")
+
+
+def test_a_crash_between_the_renames_resumes_from_the_complete_old_checkpoint(demo_dir, tmp_path):
+    import os
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import read_checkpoint
+
+    run = _trained(demo_dir, tmp_path / "run")
+    checkpoints = run / "checkpoints"
+    saved = read_checkpoint(checkpoints / "last")["counters"]
+    os.replace(checkpoints / "last", checkpoints / ".last.old")
+    (checkpoints / ".last.tmp").mkdir()  # the new one, cut short before its manifest
+    (checkpoints / ".last.tmp" / "state.pt").write_bytes(b"partial")
+    with pytest.warns(RuntimeWarning, match=r"resuming from .*\.last\.old \(episode 2\)"):
+        trainer = MPAIL2Trainer.resume(run)
+    assert trainer.counters == saved and len(trainer.replay) == 100
+    trainer.close()
+
+
+def test_last_is_written_every_last_every_episodes_before_the_first_evaluation(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import checkpoint_episodes
+
+    trainer = MPAIL2Trainer(_cfg(demo_dir, "train.total_episodes=4", "train.last_every=2", "train.eval_every=4",
+                                 "train.eval_episodes=1"), run_dir=tmp_path / "run")
+    written = []
+    save = trainer.save
+    trainer.save = lambda tag, with_replay=False: written.append((tag, trainer.counters["episodes"], with_replay)) or save(tag, with_replay)
+    trainer.train()
+    assert ("last", 2, True) in written and ("last", 4, True) in written
+    assert [w for w in written if w[0] == "last"].count(("last", 4, True)) == 1  # not twice at the evaluation
+    assert checkpoint_episodes(tmp_path / "run" / "checkpoints" / "last") == 4
+
+
+def test_resume_falls_back_to_the_newest_numbered_checkpoint(demo_dir, tmp_path):
+    import shutil
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    run = _trained(demo_dir, tmp_path / "run", "train.total_episodes=3", "train.checkpoint_every=1")
+    shutil.rmtree(run / "checkpoints" / "last")
+    with pytest.warns(RuntimeWarning, match=r"resuming from .*episode_000003 \(episode 3\)"):
+        trainer = MPAIL2Trainer.resume(run)
+    assert trainer.counters["episodes"] == 3
+    trainer.close()
+
+
+def test_a_torn_last_line_of_the_metrics_is_dropped_with_a_warning(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    run = _trained(demo_dir, tmp_path / "run", "train.last_every=1")
+    with open(run / "metrics.jsonl", "a") as f:
+        f.write('{"episode": 3, "succ')
+    with pytest.warns(RuntimeWarning, match=r"metrics.jsonl: dropping its torn last line"):
+        trainer = MPAIL2Trainer.resume(run, ["train.total_episodes=3"])
+    trainer.train()
+    assert _episodes_logged(run) == [1, 2, 3]
+    (run / "eval.jsonl").write_text('{"episode": 1}\nnot json\n{"episode": 2}\n')
+    from torchrl_mpail2.trainers.plots import read_jsonl
+    with pytest.raises(ValueError, match=r"eval.jsonl, line 2 is not JSON"):
+        read_jsonl(run / "eval.jsonl")
+
+
+def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
+    from torchrl_mpail2.config import ConfigError
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    run = _trained(demo_dir, tmp_path / "run")
+    with pytest.raises(ConfigError, match=r"\['train.batch_size'\] cannot change"):
+        MPAIL2Trainer.resume(run, ["train.batch_size=4"])
+    trainer = MPAIL2Trainer.resume(run, ["train.total_episodes=3"])
+    summary = trainer.train()
+    assert summary["episodes"] == 3 and len(trainer.replay) == 150 and _episodes_logged(run) == [1, 2, 3]
+    assert '"total_episodes": 3' in (run / "config.json").read_text()
+
+
+def test_resume_with_other_network_sizes_names_the_fields(demo_dir, tmp_path):
+    import json
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import CheckpointError
+
+    run = _trained(demo_dir, tmp_path / "run")
+    config = json.loads((run / "config.json").read_text())
+    config["model"]["hidden_dims"], config["model"]["latent_dim"] = [32], 16
+    (run / "config.json").write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match=r"model.hidden_dims: \[64, 64\] in the checkpoint, \[32\] now"):
+        MPAIL2Trainer.resume(run)
+    with pytest.raises(CheckpointError, match=r"model.latent_dim: 32 in the checkpoint, 16 now"):
+        MPAIL2Trainer.resume(run)
+
+
+def test_relative_paths_are_saved_resolved(demo_dir, tmp_path, monkeypatch):
+    import json
+    import shutil
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    shutil.copytree(demo_dir, tmp_path / "demos" / "pm")
+    monkeypatch.chdir(tmp_path)
+    MPAIL2Trainer(_cfg("demos/pm", "train.run_dir=runs/a")).train()
+    saved = json.loads((tmp_path / "runs" / "a" / "config.json").read_text())["train"]
+    assert saved["demos"] == str(tmp_path / "demos" / "pm") and saved["run_dir"] == str(tmp_path / "runs" / "a")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    MPAIL2Trainer.resume(tmp_path / "runs" / "a", ["train.total_episodes=3"]).train()
+
+
+def test_a_run_folder_is_locked_and_not_reused_without_resume_or_overwrite(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.run_folder import RunFolderError
+
+    first = MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run")
+    with pytest.raises(RunFolderError, match=r"run .* is in use by another training \(pid \d+\)"):
+        MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run", if_exists="overwrite")
+    with pytest.raises(RunFolderError, match="in use"):
+        MPAIL2Trainer.resume(tmp_path / "run")
+    first.train()
+    with pytest.raises(RunFolderError, match=r"already holds a run .*resume it"):
+        MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run")
+    assert _episodes_logged(tmp_path / "run") == [1, 2]
+    MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run", if_exists="overwrite").train()
+    assert _episodes_logged(tmp_path / "run") == [1, 2]
+
+
+def test_a_run_that_fails_validation_leaves_no_folder_behind(demo_dir, tmp_path):
+    from torchrl.envs import TransformedEnv
+    from torchrl.envs.transforms import ActionScaling
+
+    from torchrl_mpail2.envs import make_env
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    def wide_actions(seed=0):
+        return TransformedEnv(make_env("point_mass", seed=seed), ActionScaling(loc=0.0, scale=2.0))
+
+    with pytest.raises(ValueError, match=r"bounded to \[-1, 1\]"):
+        MPAIL2Trainer(_cfg(demo_dir), env_fn=wide_actions, run_dir=tmp_path / "run")
+    assert not (tmp_path / "run").exists()

@@ -1,8 +1,10 @@
 """Run configuration: the training loop's settings plus the agent's, with command-line overrides."""
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 from typing import ClassVar
 
 from torchrl_mpail2.config import (
@@ -24,6 +26,8 @@ MODEL_FREE_ABLATIONS = ("PM", "PMO")
 LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 
 UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
+#: Fields that an override may change when a run is resumed (the rest is what the run was started with).
+RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads")
 
 
 @dataclass
@@ -184,23 +188,9 @@ def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentCo
         (256, (64, 64))
     """
     data = cfg.to_dict()
-    pairs, i = [], 0
-    while i < len(overrides):
-        item = overrides[i].removeprefix("--")
-        if "=" in item:
-            pairs.append(item.split("=", 1))
-            i += 1
-        elif i + 1 < len(overrides):
-            pairs.append((item, overrides[i + 1]))
-            i += 2
-        else:
-            raise ConfigError(f"override {overrides[i]!r} has no value")
+    pairs = _pairs(overrides)
     for path, text in pairs:
-        section, _, name = path.partition(".")
-        if not name:  # bare names go to the train section
-            section, name = "train", section
-        section = section.replace("-", "_")
-        name = name.replace("-", "_")
+        section, _, name = _field_path(path).partition(".")
         if section not in data:
             raise ConfigError(f"unknown config section {section!r} in override {path!r}; sections: {sorted(data)}")
         if name not in data[section]:
@@ -208,3 +198,47 @@ def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentCo
         data[section][name] = _parse_value(text, type(getattr(cfg, section)), section, name)
     return ExperimentConfig.from_dict(data)
 
+
+def _pairs(overrides: list[str]) -> list[tuple[str, str]]:
+    """``section.field=value`` and ``--section.field value`` items as ``(path, text)``."""
+    pairs, i = [], 0
+    while i < len(overrides):
+        item = overrides[i].removeprefix("--")
+        if "=" in item:
+            pairs.append(tuple(item.split("=", 1)))
+            i += 1
+        elif i + 1 < len(overrides):
+            pairs.append((item, overrides[i + 1]))
+            i += 2
+        else:
+            raise ConfigError(f"override {overrides[i]!r} has no value")
+    return pairs
+
+
+def _field_path(path: str) -> str:
+    section, _, name = path.partition(".")
+    if not name:  # bare names go to the train section
+        section, name = "train", section
+    return f"{section.replace('-', '_')}.{name.replace('-', '_')}"
+
+
+def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
+    """:func:`apply_overrides` for a resumed run: only the fields of :data:`RESUME_FIELDS` may change.
+
+    Examples:
+        >>> apply_resume_overrides(ExperimentConfig(), ["train.total_episodes=500"]).train.total_episodes
+        500
+    """
+    refused = [path for path, _ in _pairs(overrides) if _field_path(path) not in RESUME_FIELDS]
+    if refused:
+        raise ConfigError(f"a resumed run keeps its saved config; {refused} cannot change (resumable: {list(RESUME_FIELDS)})")
+    return apply_overrides(cfg, overrides)
+
+
+def resolve_paths(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfig:
+    """A copy of ``cfg`` whose run folder is ``run_dir`` and whose paths are absolute, so that the saved config
+    resumes from any working directory."""
+    demos = cfg.train.demos
+    train = dataclasses.replace(cfg.train, run_dir=str(Path(run_dir).resolve()),
+                                demos=None if demos is None else str(Path(demos).resolve()))
+    return dataclasses.replace(cfg, train=train)
