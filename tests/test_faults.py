@@ -320,3 +320,71 @@ def test_a_run_that_fails_validation_leaves_no_folder_behind(demo_dir, tmp_path)
     with pytest.raises(ValueError, match=r"bounded to \[-1, 1\]"):
         MPAIL2Trainer(_cfg(demo_dir), env_fn=wide_actions, run_dir=tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+# ---- learning state against one bad batch ---------------------------------------------------------------
+def _updater():
+    from torchrl_mpail2.config import LossConfig
+    from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
+    from torchrl_mpail2.trainers.update import MPAIL2Updater
+
+    from conftest import tiny_modules
+
+    return MPAIL2Updater(MPAIL2Loss(tiny_modules(), LossConfig(reward_scale_momentum=0.9)))
+
+
+def test_a_batch_with_a_nan_observation_is_skipped_whole_counted_and_logged(caplog):
+    import torch
+
+    from conftest import replay_batch
+
+    updater = _updater()
+    updater.update(replay_batch())
+    before = {k: v.clone() for k, v in updater.loss.state_dict().items()}
+    adam = [dict(o.state_dict()["state"]) for o in updater.optimizers.values()]
+    bad = replay_batch()
+    bad["next", "observation"][1, 2, 0] = float("nan")
+    with caplog.at_level("WARNING"):
+        assert updater.update(bad) is None
+    assert "['next.observation']" in caplog.text
+    assert updater.skipped["batch"] == 1 and updater.last_nonfinite_keys == ["next.observation"]
+    after = updater.loss.state_dict()
+    assert all(torch.equal(v, after[k]) for k, v in before.items())  # weights, targets, reward scale, log alpha
+    assert [len(o.state_dict()["state"]) for o in updater.optimizers.values()] == [len(a) for a in adam]
+    out = updater.update(replay_batch())  # later batches learn as before
+    assert torch.isfinite(out["reward_scale"]) and torch.isfinite(out["loss_value"])
+    assert sum(updater.skipped.values()) == 1
+
+
+def test_one_nan_batch_through_the_loss_in_training_mode_leaves_the_reward_scale_finite():
+    import torch
+
+    from conftest import replay_batch
+
+    loss = _updater().loss
+    loss.train()
+    loss(replay_batch())
+    net = loss.components.reward.module
+    scale, updates = net.reward_scale.clone(), net.scale_updates.clone()
+    bad = replay_batch()
+    bad["observation"][0, 0, 0] = float("nan")
+    loss(bad)
+    assert torch.equal(net.reward_scale, scale) and torch.equal(net.scale_updates, updates)
+    assert torch.isfinite(loss(replay_batch())["reward_scale"])
+    fresh = _updater().loss.components.reward.module  # a first call with NaN leaves the initial scale of 1
+    fresh.track_scale(torch.tensor([1.0, float("nan")]), 0.9)
+    assert fresh.reward_scale.item() == 1.0
+
+
+def test_the_learners_nan_actions_stop_training_at_once_naming_the_cause(demo_dir, tmp_path):
+    import torch
+
+    from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    trainer = MPAIL2Trainer(_cfg(demo_dir, "train.total_episodes=3"), run_dir=tmp_path / "run")
+    with torch.no_grad():
+        next(trainer.modules.dynamics.parameters()).fill_(float("nan"))
+    with pytest.raises(NonFiniteActionError, match=r"episode 2, after \d+ updates: LatentMPPIPlanner returned non-finite"):
+        trainer.train()
+    assert trainer.counters["warnings"] == 0 and trainer.counters["episodes"] == 1

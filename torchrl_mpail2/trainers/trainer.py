@@ -26,7 +26,7 @@ from torchrl_mpail2.modules.factory import make_mpail2_modules
 from torchrl_mpail2.objectives.model_free import DACLoss
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
-from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
+from torchrl_mpail2.planners.policy_actor import NonFiniteActionError, PolicyActor, WarmupSwitch
 from torchrl_mpail2.trainers import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import (
     LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig, apply_resume_overrides,
@@ -174,16 +174,22 @@ class MPAIL2Trainer:
 
     def update(self, num_updates: int) -> dict:
         """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""
-        sums = None
+        sums, applied, nonfinite_keys = None, 0, set()
         start = time.perf_counter()
         for _ in range(num_updates):
             td = self.sample_batch(self.replay)
             td_policy = self.sample_batch(self.latest) if self.latest is not None else None
             metrics = self.updater.update(td, td_policy)
+            if metrics is None:  # a batch holding NaN or Inf, skipped whole
+                nonfinite_keys.update(self.updater.last_nonfinite_keys)
+                continue
+            applied += 1
             sums = metrics if sums is None else sums + metrics  # stays on device: one transfer per episode
-        self.counters["updates"] += num_updates
-        out = {k: float(v) / max(num_updates, 1) for k, v in ({} if sums is None else sums).items()}
+        self.counters["updates"] += applied
+        out = {k: float(v) / max(applied, 1) for k, v in ({} if sums is None else sums).items()}
         out["nonfinite_skips"] = float(sum(self.updater.skipped.values()))  # a running count, not a mean
+        if nonfinite_keys:
+            out["nonfinite_batch_keys"] = sorted(nonfinite_keys)
         out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
         return out
 
@@ -312,13 +318,18 @@ class MPAIL2Trainer:
 
     def _next_episode(self, state: dict) -> TensorDict:
         """Next complete episode from the collector. A simulator exception ends that episode with a
-        warning; a fresh collector (and environment) takes over and training goes on."""
+        warning; a fresh collector (and environment) takes over and training goes on. Non-finite actions
+        of the learner's own actor stop training at once (a new environment would not help)."""
         while True:
             if state.get("iterator") is None:
                 state["collector"] = self._collector()
                 state["iterator"] = iter(state["collector"])
             try:
                 return next(state["iterator"])
+            except NonFiniteActionError as err:
+                skipped = dict(self.updater.skipped)
+                raise NonFiniteActionError(f"episode {self.counters['episodes'] + 1}, after {self.counters['updates']} "
+                                           f"updates: {err} Non-finite skips so far: {skipped or 'none'}.") from err
             except (RuntimeError, ValueError, FloatingPointError) as err:
                 self.counters["warnings"] += 1
                 if self.counters["warnings"] > 100:
@@ -329,9 +340,18 @@ class MPAIL2Trainer:
                 state["iterator"] = None
 
     def train(self) -> dict:
-        """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time)."""
-        t = self.cfg.train
+        """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time).
+
+        The run folder is locked meanwhile (released when training ends, by an error too).
+        """
         self.run_folder.acquire()
+        try:
+            return self._train()
+        finally:
+            self.close()
+
+    def _train(self) -> dict:
+        t = self.cfg.train
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start, evaluation, state = time.perf_counter(), None, {}
         try:
@@ -381,7 +401,6 @@ class MPAIL2Trainer:
                    "best_eval_success": self.best_eval if self.best_eval > -math.inf else None,
                    "last_eval": evaluation}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-        self.close()
         return summary
 
     def _evaluate_and_checkpoint(self) -> dict:
