@@ -388,3 +388,44 @@ def test_the_learners_nan_actions_stop_training_at_once_naming_the_cause(demo_di
     with pytest.raises(NonFiniteActionError, match=r"episode 2, after \d+ updates: LatentMPPIPlanner returned non-finite"):
         trainer.train()
     assert trainer.counters["warnings"] == 0 and trainer.counters["episodes"] == 1
+
+
+# ---- keys and specs ----------------------------------------------------------------------------------
+def _with_episode_reward(seed=0):
+    from torchrl.envs import RewardSum
+
+    from torchrl_mpail2.envs import make_env
+
+    env = make_env("point_mass", seed=seed)
+    env.append_transform(RewardSum(in_keys=["task_reward"], out_keys=["episode_reward"]))  # TorchRL's standard key
+    return env
+
+
+def test_torchrls_reward_sum_key_is_not_an_observation_in_modules_demos_or_the_trainer(demo_dir, tmp_path):
+    from torchrl_mpail2.data import record_demos
+    from torchrl_mpail2.envs.keys import observation_keys_of
+    from torchrl_mpail2.experts import PointMassExpert
+    from torchrl_mpail2.modules import make_mpail2_modules
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    env = _with_episode_reward()
+    assert "episode_reward" in env.observation_spec.keys()
+    assert observation_keys_of(env) == ["observation"]
+    assert record_demos(env, PointMassExpert(), episodes=1, progress=False).observation_keys == ["observation"]
+    assert make_mpail2_modules(env.observation_spec, env.action_spec).encoder.in_keys == ["observation"]
+    trainer = MPAIL2Trainer(_cfg(demo_dir), env_fn=_with_episode_reward, run_dir=tmp_path / "run")
+    assert trainer.modules.encoder.in_keys == ["observation"]
+    trainer.close()
+
+
+def test_the_planner_checks_its_action_spec_at_construction():
+    from torchrl.data import Bounded
+
+    from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
+
+    from conftest import tiny_modules
+
+    with pytest.raises(ValueError, match=r"bounded to \[-1, 1\].*low=\[-2.0, -2.0\]"):
+        LatentMPPIPlanner(tiny_modules(), Bounded(-2, 2, (2,)))
+    with pytest.raises(ValueError, match="the action spec has 3 dimensions .*the networks act in 2"):
+        LatentMPPIPlanner(tiny_modules(), Bounded(-1, 1, (3,)))

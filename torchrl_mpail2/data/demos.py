@@ -37,7 +37,7 @@ from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
-from torchrl_mpail2.modules.factory import NON_OBSERVATION_KEYS  # keys of a spec that are not task observations
+from torchrl_mpail2.envs.keys import observation_keys_of
 
 __all__ = [
     "DemoFormatError",
@@ -100,17 +100,6 @@ def _check_finite(observations: TensorDict, error: type[Exception], where: str) 
             more = f" and {len(episodes) - _EPISODES_SHOWN} more" if len(episodes) > _EPISODES_SHOWN else ""
             raise error(f"{where}: observation key {key!r} holds NaN or Inf in episode(s) "
                         f"{episodes[:_EPISODES_SHOWN]}{more} ({int(bad.sum())} observation(s)).")
-
-
-def observation_keys_of(observation_spec: Composite) -> list:
-    """Keys of an observation spec that are task observations (leaves, minus success and bookkeeping).
-
-    Examples:
-        >>> from torchrl_mpail2.envs import make_env
-        >>> observation_keys_of(make_env("point_mass").observation_spec)
-        ['observation']
-    """
-    return [key for key in observation_spec.keys(True, True) if key not in NON_OBSERVATION_KEYS]
 
 
 @dataclass
@@ -343,8 +332,8 @@ def record_demos(
 
     Episode ``i`` is reset with seed ``seed + i`` (env seed and, inside a forked RNG scope, the
     global torch seed, so stochastic experts are reproducible too): the same ``seed`` gives
-    identical data. Kept keys: everything in ``env.observation_spec`` except ``"success"`` and the
-    bookkeeping keys. Actions and rewards are dropped; per-episode metadata keeps the success at
+    identical data. Kept keys: those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (the
+    observation spec minus success, reward and bookkeeping keys). Actions and rewards are dropped; per-episode metadata keeps the success at
     the last step, the task return (reporting only), the length and the seed.
 
     Args:
@@ -373,7 +362,7 @@ def record_demos(
         raise ValueError(f"record_demos needs an env with an empty batch size, got {tuple(env.batch_size)}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}.")
-    keys = observation_keys_of(env.observation_spec)
+    keys = observation_keys_of(env)
     if env_id is None:
         env_id = type(getattr(env, "base_env", env)).__name__
     has_success = "success" in env.observation_spec.keys()
@@ -487,13 +476,16 @@ def _check_contents(observations: TensorDict, header: dict) -> None:
         raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
 
 
-def check_observation_spec(demos: Demonstrations, observation_spec: Composite) -> None:
+def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase) -> None:
     """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
 
-    ``"success"`` and bookkeeping keys of the spec are ignored; batch dimensions of the spec are
-    stripped before shapes are compared.
+    The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
+    rather than its spec so that its own bookkeeping transforms are recognised); batch dimensions of the
+    spec are stripped before shapes are compared.
     """
     spec_keys = observation_keys_of(observation_spec)
+    if isinstance(observation_spec, EnvBase):
+        observation_spec = observation_spec.observation_spec
     demo_keys = demos.observation_keys
     missing = [key for key in spec_keys if key not in demo_keys]
     extra = [key for key in demo_keys if key not in spec_keys]
@@ -517,7 +509,7 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite) -
             )
 
 
-def load_demos(path: str | Path, observation_spec: Composite | None = None, verify: bool = True) -> Demonstrations:
+def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True) -> Demonstrations:
     """Loads and validates demonstrations written by :func:`save_demos`.
 
     Every stored file is checked against the byte size and sha256 recorded in the header before
@@ -526,7 +518,8 @@ def load_demos(path: str | Path, observation_spec: Composite | None = None, veri
 
     Args:
         path (str or Path): demo directory.
-        observation_spec (Composite, optional): an env's observation spec to check keys and shapes against.
+        observation_spec (Composite or EnvBase, optional): an env (or its observation spec) to check keys and
+            shapes against (:func:`check_observation_spec`).
         verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
 
     Raises:

@@ -133,10 +133,10 @@ class MPAIL2Trainer:
     def _load_or_record_demos(self) -> Demonstrations:
         t = self.cfg.train
         if t.demos is not None:
-            return load_demos(t.demos, self.env.observation_spec)
+            return load_demos(t.demos, self.env)
         path = default_demo_dir(self.cfg)
         if path.exists():
-            return load_demos(path, self.env.observation_spec)
+            return load_demos(path, self.env)
         demo_env = self.env_fn(seed=t.seed + 1_000_000)
         expert = get_expert(t.env, demo_env)
         log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
