@@ -429,3 +429,75 @@ def test_the_planner_checks_its_action_spec_at_construction():
         LatentMPPIPlanner(tiny_modules(), Bounded(-2, 2, (2,)))
     with pytest.raises(ValueError, match="the action spec has 3 dimensions .*the networks act in 2"):
         LatentMPPIPlanner(tiny_modules(), Bounded(-1, 1, (3,)))
+
+
+# ---- kills at random moments ----------------------------------------------------------------------------
+@pytest.mark.slow
+def test_a_run_killed_at_random_moments_and_resumed_ends_like_an_uninterrupted_one(demo_dir, tmp_path):
+    """SIGKILL three times (the first before the first evaluation), resume after each: the same counts as a
+    run that was never interrupted, each episode logged once, and never more than last_every episodes lost."""
+    import json
+    import os
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+    import warnings
+    from pathlib import Path
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+    from torchrl_mpail2.trainers.checkpoint import checkpoint_episodes, find_resumable
+    from torchrl_mpail2.trainers.plots import read_jsonl
+
+    settings = ["train.total_episodes=12", "train.eval_every=6", "train.eval_episodes=1", "train.last_every=2",
+                "train.utd=0.05", "train.checkpoint_every=5"]
+    reference = MPAIL2Trainer(_cfg(demo_dir, *settings), run_dir=tmp_path / "reference").train()
+
+    run = tmp_path / "run"
+    args = [sys.executable, "-m", "torchrl_mpail2.train", "--preset", "point_mass"]
+    overrides = ["train.progress=false", "train.logger=none", f"train.demos={demo_dir}", "train.warmup_episodes=1",
+                 "train.batch_size=8", *settings, f"train.run_dir={run}"]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}
+    rng, kills = random.Random(14), []
+
+    def logged() -> int:  # complete records (a torn last line is not one)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return len(read_jsonl(run / "metrics.jsonl"))
+
+    for kill in range(3):
+        command = args + (overrides if kill == 0 else ["--resume", str(run)])
+        proc = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            start, deadline = logged(), time.time() + 300
+            while logged() < start + 1 and time.time() < deadline:  # wait for this process to make progress
+                assert proc.poll() is None, proc.stderr.read()
+                time.sleep(0.05)
+            time.sleep(rng.uniform(0.0, 0.3 if kill == 0 else 2.0))
+            before_eval = not (run / "eval.jsonl").exists()
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        if kill == 0:
+            assert before_eval, "the first kill came after the first evaluation"
+        lines = logged()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            resumable = find_resumable(run / "checkpoints")
+            restart = 0 if resumable is None else checkpoint_episodes(resumable)
+        assert lines - restart <= 2, (kill, lines, restart)  # lost episodes: at most last_every
+        kills.append((lines, restart))
+    print("episodes logged at each kill, episode resumed from:", kills)
+    assert kills[-1][1] > 0  # the later kills came after checkpoints: resuming restored one
+
+    done = subprocess.run(args + ["--resume", str(run)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    summary = json.loads((run / "summary.json").read_text())
+    for counter in ("episodes", "env_steps", "updates"):
+        assert summary[counter] == reference[counter], counter
+    assert _episodes_logged(run) == list(range(1, 13))
+    evaluations = [json.loads(line)["episode"] for line in (run / "eval.jsonl").read_text().splitlines()]
+    assert evaluations == [6, 12]
