@@ -68,8 +68,8 @@ def main() -> None:
     if args.resume:
         if overrides:
             raise SystemExit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
-        trainer = MPAIL2Trainer.resume(args.resume)
-        trainer.cfg.train.max_wall_s = args.budget_min * 60  # the budget counts from this call
+        # the budget counts from this call; the saved config.json records it
+        trainer = MPAIL2Trainer.resume(args.resume, [f"train.max_wall_s={args.budget_min * 60}"])
         prefix = "resumed_"
     else:
         trainer = MPAIL2Trainer(apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",

@@ -38,11 +38,6 @@ def seed_dir(runs_root: Path, name: str, seed: int) -> Path:
     return runs_root / name / f"seed{seed}"
 
 
-#: Continues a run from its last checkpoint for ``--extend-min`` more minutes (the CLI resumes with the saved budget).
-EXTEND = ("import sys; from torchrl_mpail2.trainers import MPAIL2Trainer; t = MPAIL2Trainer.resume(sys.argv[1]); "
-          "t.cfg.train.max_wall_s = float(sys.argv[2]); t.train()")
-
-
 def _episodes_done(run_dir: Path) -> int:
     return len(_read_jsonl(run_dir / "metrics.jsonl"))
 
@@ -58,7 +53,7 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
         if args.extend_min and _episodes_done(run_dir) < args.episodes:
             # the earlier part's summary is kept so that the seed's wall time adds up over its parts
             (run_dir / "summary.json").rename(run_dir / f"summary.part{len(list(run_dir.glob('summary.part*.json')))}.json")
-            return [sys.executable, "-c", EXTEND, str(run_dir), str(args.extend_min * 60)]
+            return [*base, "--resume", str(run_dir), f"train.max_wall_s={args.extend_min * 60}"]
         return None
     if (run_dir / "checkpoints" / "last").exists():
         return [*base, "--resume", str(run_dir)]
@@ -103,9 +98,10 @@ def _read_jsonl(path: Path) -> list[dict]:
     return rows
 
 
-def _git_commit() -> str | None:
+def _git_commit(where: Path) -> str | None:
+    """The commit checked out where the runs ran (their worktree), which may differ from this script's."""
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
                               check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return None
@@ -164,7 +160,7 @@ def summarize(name: str, runs_root: Path) -> dict:
         "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
         "all_finished": all(p["finished"] for p in per_seed.values()),
         "machine": {"platform": platform.platform(), "cores": os.cpu_count(), "torch_threads_per_seed": t["threads"]},
-        "commit": _git_commit(), "per_seed": per_seed,
+        "commit": _git_commit(runs_root), "per_seed": per_seed,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))

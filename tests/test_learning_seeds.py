@@ -54,5 +54,5 @@ def test_a_seed_short_of_its_episodes_is_extended_only_when_asked(bench, tmp_pat
     assert bench.seed_command(run, 0, args, []) is None
     args.extend_min = 30.0
     cmd = bench.seed_command(run, 0, args, [])
-    assert cmd[-2:] == [str(run), "1800.0"]
+    assert cmd[-3:] == ["--resume", str(run), "train.max_wall_s=1800.0"]
     assert not (run / "summary.json").exists() and (run / "summary.part0.json").exists()

@@ -191,12 +191,10 @@ def test_updater_changes_each_component_and_skips_nonfinite_batches():
     bad = replay_batch()
     bad["action"][0, 0, 0] = float("nan")
     snapshot = {k: v.clone() for k, v in m.state_dict().items()}
-    updater.update(bad)
-    assert updater.skipped["dynamics"] == 1 and updater.skipped["value"] == 1
+    assert updater.update(bad) is None  # a non-finite batch is skipped whole, before any stage
+    assert dict(updater.skipped) == {"batch": 1} and updater.last_nonfinite_keys == ["action"]
     for k, v in m.state_dict().items():
-        if k.startswith(("dynamics", "encoder", "value")):
-            assert torch.equal(v, snapshot[k]), k
-        assert torch.isfinite(v.float()).all(), k
+        assert torch.equal(v, snapshot[k]), k
 
 
 def test_model_free_losses_isolate_their_gradients():

@@ -6,26 +6,125 @@ factories in :mod:`torchrl_mpail2.modules.factory` compute them from the specs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+import typing
+from dataclasses import dataclass, fields
+from typing import ClassVar
 
 
 class ConfigError(ValueError):
     """A configuration value is unknown or impossible."""
 
 
-def _check_positive(obj, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if value <= 0:
-            raise ConfigError(f"{type(obj).__name__}.{name} must be > 0, got {value!r}")
+@dataclass(frozen=True)
+class Range:
+    """Interval a numeric config field must lie in (every numeric field must also be finite).
+
+    Examples:
+        >>> 0.5 in UNIT_INTERVAL, 0 in POSITIVE, str(Range(0.0, 1.0, high_open=True))
+        (True, False, '[0, 1)')
+    """
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+
+    def __contains__(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def __str__(self) -> str:
+        if self.high == math.inf:
+            return "any finite number" if self.low == -math.inf else f"{'>' if self.low_open else '>='} {self.low:g}"
+        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+
+    def requirement(self) -> str:
+        """``"be > 0"`` or ``"lie in [0, 1)"``, for error messages."""
+        return f"{'be' if self.high == math.inf else 'lie in'} {self}"
 
 
-def _check_unit_interval(obj, *names: str, closed: bool = True) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        ok = 0.0 <= value <= 1.0 if closed else 0.0 < value < 1.0
-        if not ok:
-            raise ConfigError(f"{type(obj).__name__}.{name} must lie in {'[0, 1]' if closed else '(0, 1)'}, got {value!r}")
+FINITE = Range()
+POSITIVE = Range(0.0, low_open=True)
+NON_NEGATIVE = Range(0.0)
+UNIT_INTERVAL = Range(0.0, 1.0)
+OPEN_UNIT_INTERVAL = Range(0.0, 1.0, low_open=True, high_open=True)
+AT_LEAST_ONE = Range(1.0)
+
+
+@dataclass(frozen=True)
+class FieldKind:
+    """What a config field holds, read from its type annotation: a scalar ``base`` type, a tuple of them, or None."""
+
+    base: type | None
+    optional: bool = False
+    is_tuple: bool = False
+
+    @property
+    def numeric(self) -> bool:
+        return self.base in (int, float)
+
+    def describe(self) -> str:
+        name = {int: "an integer", float: "a number", bool: "a boolean", str: "a string"}.get(self.base, "a value")
+        if self.is_tuple:
+            name = f"comma-separated values, each {name}"
+        return f"{name} or null" if self.optional else name
+
+
+def field_kind(cls: type, name: str) -> FieldKind:
+    """The :class:`FieldKind` of field ``name`` of the config dataclass ``cls``."""
+    hint = typing.get_type_hints(cls)[name]
+    args = typing.get_args(hint)
+    optional = type(None) in args
+    if optional:
+        (hint,) = [a for a in args if a is not type(None)] or [None]
+        args = typing.get_args(hint)
+    if typing.get_origin(hint) is tuple:
+        return FieldKind(args[0] if args else None, optional, True)
+    return FieldKind(hint if hint in (int, float, bool, str) else None, optional)
+
+
+def _check_scalar(where: str, value, kind: FieldKind, allowed: Range | None) -> None:
+    base = kind.base
+    if base is bool or base is str:
+        if not isinstance(value, base):
+            raise ConfigError(f"{where} must be {kind.describe()}, got {value!r}")
+        return
+    if not kind.numeric:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (base is int and not isinstance(value, int)):
+        raise ConfigError(f"{where} must be {kind.describe()}, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{where} must be finite, got {value!r}")
+    if allowed is not None and value not in allowed:
+        raise ConfigError(f"{where} must {allowed.requirement()}{' (or null)' if kind.optional else ''}, got {value!r}")
+
+
+def check_fields(config) -> None:
+    """Checks every field of a config dataclass against its annotation and its class's ``RANGES``.
+
+    Booleans and strings must have their type; numbers must have their type (an integer field takes no
+    float), be finite and lie in the field's :class:`Range`; ``None`` only where the annotation allows it.
+
+    Raises:
+        ConfigError: naming the field, the value and what was expected.
+    """
+    cls = type(config)
+    ranges = getattr(cls, "RANGES", {})
+    for f in fields(config):
+        where, value, kind = f"{cls.__name__}.{f.name}", getattr(config, f.name), field_kind(cls, f.name)
+        if value is None:
+            if not kind.optional:
+                raise ConfigError(f"{where} must be {kind.describe()}, got None")
+            continue
+        if kind.is_tuple:
+            if not isinstance(value, (tuple, list)):
+                raise ConfigError(f"{where} must be {kind.describe()}, got {value!r}")
+            for item in value:
+                _check_scalar(where, item, kind, ranges.get(f.name))
+        else:
+            _check_scalar(where, value, kind, ranges.get(f.name))
 
 
 @dataclass
@@ -57,10 +156,16 @@ class ModelConfig:
     log_std_max: float = 2.0
     """Upper bound of the policy's log standard deviation."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "latent_dim": POSITIVE, "hidden_dims": POSITIVE, "vector_coder_hidden": POSITIVE, "coder_dim": POSITIVE,
+        "cnn_channels": POSITIVE, "horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
+        "log_std_min": FINITE, "log_std_max": FINITE,
+    }
+
     def __post_init__(self) -> None:
-        self.hidden_dims = tuple(int(h) for h in self.hidden_dims)
-        _check_positive(self, "latent_dim", "vector_coder_hidden", "coder_dim", "cnn_channels", "horizon", "num_q")
-        if not self.hidden_dims or min(self.hidden_dims) <= 0:
+        check_fields(self)
+        self.hidden_dims = tuple(self.hidden_dims)
+        if not self.hidden_dims:
             raise ConfigError(f"ModelConfig.hidden_dims must be non-empty and positive, got {self.hidden_dims}")
         if self.num_q < 2:
             raise ConfigError(f"ModelConfig.num_q must be >= 2 (two heads are drawn per target), got {self.num_q}")
@@ -115,22 +220,21 @@ class LossConfig:
     policy_grad_clip: float = 1.0
     """Gradient-norm clip of the policy update."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "gamma": UNIT_INTERVAL, "lmbda": UNIT_INTERVAL, "rho": OPEN_UNIT_INTERVAL, "gp_coef": NON_NEGATIVE,
+        "reward_scale_momentum": Range(0.0, 1.0, high_open=True), "transitions_per_window": AT_LEAST_ONE,
+        "tau": UNIT_INTERVAL, "init_alpha": POSITIVE, "target_entropy_per_step": FINITE, "lr": POSITIVE,
+        "encoder_lr": POSITIVE, "alpha_lr": POSITIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
+    }
+
     def __post_init__(self) -> None:
-        _check_unit_interval(self, "gamma", "lmbda", "tau")
-        _check_unit_interval(self, "rho", closed=False)
+        check_fields(self)
         from torchrl_mpail2.functional import RETURN_FORMS
 
         if self.actor_q_reduce not in ("mean", "min"):
             raise ConfigError(f"LossConfig.actor_q_reduce must be 'mean' or 'min', got {self.actor_q_reduce!r}")
         if self.return_form not in RETURN_FORMS:
             raise ConfigError(f"unknown LossConfig.return_form {self.return_form!r}; choose from {RETURN_FORMS}")
-        _check_positive(self, "init_alpha", "lr", "encoder_lr", "alpha_lr", "value_grad_clip", "policy_grad_clip")
-        if self.gp_coef < 0:
-            raise ConfigError(f"LossConfig.gp_coef must be >= 0, got {self.gp_coef}")
-        if self.transitions_per_window is not None and self.transitions_per_window < 1:
-            raise ConfigError(f"LossConfig.transitions_per_window must be >= 1 or None, got {self.transitions_per_window}")
-        if self.reward_scale_momentum is not None and not 0.0 <= self.reward_scale_momentum < 1.0:
-            raise ConfigError(f"LossConfig.reward_scale_momentum must be in [0, 1) or None, got {self.reward_scale_momentum}")
 
 
 #: Forms of the planner's terminal value (:attr:`PlannerConfig.terminal_value`).
@@ -164,9 +268,13 @@ class PlannerConfig:
     ``plan_last_action`` (H - 1 rewards + gamma^(H-1) Q(z_{H-1}, a_{H-1}), the authors' code: Q scores the plan's
     own last action)."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_candidates": POSITIVE, "policy_fraction": UNIT_INTERVAL, "num_elites": POSITIVE, "iterations": POSITIVE,
+        "temperature": POSITIVE, "std_min": POSITIVE, "std_max": POSITIVE, "gamma": UNIT_INTERVAL,
+    }
+
     def __post_init__(self) -> None:
-        _check_positive(self, "num_candidates", "num_elites", "iterations", "temperature", "std_min", "std_max")
-        _check_unit_interval(self, "policy_fraction", "gamma")
+        check_fields(self)
         if self.num_elites > self.num_candidates:
             raise ConfigError(
                 f"PlannerConfig.num_elites ({self.num_elites}) cannot exceed num_candidates ({self.num_candidates})"

@@ -1,6 +1,8 @@
 """Command line: ``python -m torchrl_mpail2.train --preset point_mass [section.field=value ...]``.
 
-Also ``--env``/``--obs`` shortcuts, ``--resume RUN_DIR`` to continue a run, ``--init-from CKPT --transfer
+Also ``--env``/``--obs`` shortcuts, ``--resume RUN_DIR`` to continue a run (with overrides of
+``train.total_episodes``, ``train.max_wall_s``, ``train.progress`` or ``train.threads`` only, e.g. to extend
+it), ``--overwrite`` to replace the run in an existing run folder, ``--init-from CKPT --transfer
 all|world-model`` to start from another run's weights, and ``--print-config`` to show the resolved config.
 """
 from __future__ import annotations
@@ -9,7 +11,8 @@ import argparse
 import json
 import sys
 
-from torchrl_mpail2.trainers.config import apply_overrides
+from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.trainers.config import RESUME_FIELDS, apply_overrides
 from torchrl_mpail2.trainers.presets import PRESETS, preset
 
 #: Table 4: latents are 512 wide with images.
@@ -21,7 +24,9 @@ def build_parser(default_preset: str, description: str | None) -> argparse.Argum
     p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS))
     p.add_argument("--env", help="environment name (see torchrl_mpail2.envs.ENV_NAMES)")
     p.add_argument("--obs", help="state | pixels | external_pixels (robosuite)")
-    p.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR from checkpoints/last")
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help=f"continue the run in RUN_DIR from its newest complete checkpoint (overrides: {', '.join(RESUME_FIELDS)})")
+    p.add_argument("--overwrite", action="store_true", help="replace the run already in train.run_dir")
     p.add_argument("--init-from", metavar="CKPT", help="initialise weights from another run's checkpoint folder")
     p.add_argument("--transfer", default="all", choices=["all", "world-model"])
     p.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
@@ -34,9 +39,10 @@ def main(argv: list[str] | None = None, default_preset: str = "lift_state", desc
     from torchrl_mpail2.trainers.trainer import MPAIL2Trainer
 
     if args.resume:
-        if overrides:
-            sys.exit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
-        trainer = MPAIL2Trainer.resume(args.resume)
+        try:
+            trainer = MPAIL2Trainer.resume(args.resume, overrides)
+        except ConfigError as error:
+            sys.exit(f"--resume {args.resume}: {error}")
     else:
         cfg = preset(args.preset)
         if args.env:
@@ -49,7 +55,7 @@ def main(argv: list[str] | None = None, default_preset: str = "lift_state", desc
         print(cfg.to_json())
         if args.print_config:
             return None
-        trainer = MPAIL2Trainer(cfg)
+        trainer = MPAIL2Trainer(cfg, if_exists="overwrite" if args.overwrite else "refuse")
         if args.init_from:
             trainer.init_from(args.init_from, args.transfer)
     print(f"run folder: {trainer.run_dir}")

@@ -20,7 +20,6 @@ Episodes are stored one after the other, each with its final next-observation, s
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -37,7 +36,8 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
-from torchrl_mpail2.modules.factory import NON_OBSERVATION_KEYS  # keys of a spec that are not task observations
+from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
+from torchrl_mpail2.envs.keys import observation_keys_of
 
 __all__ = [
     "DemoFormatError",
@@ -61,7 +61,8 @@ NOT_STORED_NOTE = (
     "Observation-only demonstrations: actions and rewards are not stored. "
     "Per-episode task_return is kept for reporting only and must not be used for learning."
 )
-_HASH_CHUNK_BYTES = 1 << 20
+#: Episodes listed by name in an error about non-finite observations.
+_EPISODES_SHOWN = 10
 
 
 class DemoFormatError(Exception):
@@ -87,15 +88,18 @@ def _dtype_from_name(name: str) -> torch.dtype:
     return dtype
 
 
-def observation_keys_of(observation_spec: Composite) -> list:
-    """Keys of an observation spec that are task observations (leaves, minus success and bookkeeping).
-
-    Examples:
-        >>> from torchrl_mpail2.envs import make_env
-        >>> observation_keys_of(make_env("point_mass").observation_spec)
-        ['observation']
-    """
-    return [key for key in observation_spec.keys(True, True) if key not in NON_OBSERVATION_KEYS]
+def _check_finite(observations: TensorDict, error: type[Exception], where: str) -> None:
+    """Raises ``error`` naming the first float observation key that holds NaN or Inf, and its episodes."""
+    episode = observations.get(EPISODE_KEY)
+    for key, tensor in observations.items(True, True):
+        if key in INDEX_KEYS or not tensor.is_floating_point():
+            continue
+        bad = ~torch.isfinite(tensor.reshape(tensor.shape[0], -1)).all(-1)
+        if bool(bad.any()):
+            episodes = sorted(set(episode[bad].tolist()))
+            more = f" and {len(episodes) - _EPISODES_SHOWN} more" if len(episodes) > _EPISODES_SHOWN else ""
+            raise error(f"{where}: observation key {key!r} holds NaN or Inf in episode(s) "
+                        f"{episodes[:_EPISODES_SHOWN]}{more} ({int(bad.sum())} observation(s)).")
 
 
 @dataclass
@@ -218,6 +222,7 @@ def _assemble(
     columns[EPISODE_KEY] = torch.repeat_interleave(torch.arange(len(episodes)), counts)
     columns[STEP_KEY] = torch.cat([torch.arange(int(count)) for count in counts])
     observations = TensorDict(columns, batch_size=[int(counts.sum())])
+    _check_finite(observations, ValueError, "Demonstrations")
 
     first = torch.cumsum(counts, 0) - counts
     episode_meta = [
@@ -328,8 +333,8 @@ def record_demos(
 
     Episode ``i`` is reset with seed ``seed + i`` (env seed and, inside a forked RNG scope, the
     global torch seed, so stochastic experts are reproducible too): the same ``seed`` gives
-    identical data. Kept keys: everything in ``env.observation_spec`` except ``"success"`` and the
-    bookkeeping keys. Actions and rewards are dropped; per-episode metadata keeps the success at
+    identical data. Kept keys: those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (the
+    observation spec minus success, reward and bookkeeping keys). Actions and rewards are dropped; per-episode metadata keeps the success at
     the last step, the task return (reporting only), the length and the seed.
 
     Args:
@@ -362,7 +367,7 @@ def record_demos(
         raise ValueError(f"episodes must be >= 1, got {episodes}.")
     if steps_after_success is not None and steps_after_success < 0:
         raise ValueError(f"steps_after_success must be >= 0 or None, got {steps_after_success}.")
-    keys = observation_keys_of(env.observation_spec)
+    keys = observation_keys_of(env)
     if env_id is None:
         env_id = type(getattr(env, "base_env", env)).__name__
     has_success = "success" in env.observation_spec.keys()
@@ -399,14 +404,6 @@ def record_demos(
     return demos
 
 
-def _file_digest(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(_HASH_CHUNK_BYTES), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False) -> Path:
     """Writes demonstrations to a directory (format in the module docstring).
 
@@ -424,17 +421,14 @@ def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False)
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True to replace it.")
+    _check_finite(demos.observations, ValueError, f"Not saving demonstrations to {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
     staging = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     try:
         staging.mkdir()
         arrays_dir = staging / OBSERVATIONS_DIR
         demos.observations.memmap(arrays_dir)
-        files = {
-            file.relative_to(staging).as_posix(): {"nbytes": file.stat().st_size, "sha256": _file_digest(file)}
-            for file in sorted(arrays_dir.rglob("*"))
-            if file.is_file()
-        }
+        files = folder_manifest(staging, OBSERVATIONS_DIR)
         header = {key: value for key, value in demos.header.items() if key != "files"}
         header["files"] = files
         (staging / HEADER_FILE).write_text(json.dumps(header, indent=1))
@@ -468,20 +462,6 @@ def _read_header(path: Path) -> dict:
     return header
 
 
-def _check_files(path: Path, header: dict, verify: bool) -> None:
-    for relative, expected in header["files"].items():
-        file = path / relative
-        if not file.is_file():
-            raise DemoFormatError(f"{file} is missing: the demo directory is truncated or corrupted.")
-        size = file.stat().st_size
-        if size != expected["nbytes"]:
-            raise DemoFormatError(
-                f"{file} is truncated or corrupted: {size} bytes on disk, {expected['nbytes']} in the header."
-            )
-        if verify and _file_digest(file) != expected["sha256"]:
-            raise DemoFormatError(f"{file} is corrupted: its sha256 does not match the header.")
-
-
 def _check_contents(observations: TensorDict, header: dict) -> None:
     """Cross-checks the loaded arrays against the header (catches edited or mismatched headers)."""
     expected = {_key_from_json(entry["key"]): entry for entry in header["observation_keys"]}
@@ -505,13 +485,16 @@ def _check_contents(observations: TensorDict, header: dict) -> None:
         raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
 
 
-def check_observation_spec(demos: Demonstrations, observation_spec: Composite) -> None:
+def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase) -> None:
     """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
 
-    ``"success"`` and bookkeeping keys of the spec are ignored; batch dimensions of the spec are
-    stripped before shapes are compared.
+    The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
+    rather than its spec so that its own bookkeeping transforms are recognised); batch dimensions of the
+    spec are stripped before shapes are compared.
     """
     spec_keys = observation_keys_of(observation_spec)
+    if isinstance(observation_spec, EnvBase):
+        observation_spec = observation_spec.observation_spec
     demo_keys = demos.observation_keys
     missing = [key for key in spec_keys if key not in demo_keys]
     extra = [key for key in demo_keys if key not in spec_keys]
@@ -535,7 +518,7 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite) -
             )
 
 
-def load_demos(path: str | Path, observation_spec: Composite | None = None, verify: bool = True) -> Demonstrations:
+def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True) -> Demonstrations:
     """Loads and validates demonstrations written by :func:`save_demos`.
 
     Every stored file is checked against the byte size and sha256 recorded in the header before
@@ -544,19 +527,22 @@ def load_demos(path: str | Path, observation_spec: Composite | None = None, veri
 
     Args:
         path (str or Path): demo directory.
-        observation_spec (Composite, optional): an env's observation spec to check keys and shapes against.
+        observation_spec (Composite or EnvBase, optional): an env (or its observation spec) to check keys and
+            shapes against (:func:`check_observation_spec`).
         verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
 
     Raises:
-        DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files.
+        DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files, NaN or Inf
+            in an observation (the message names the key and the episodes).
         ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes).
     """
     path = Path(path)
     header = _read_header(path)
     try:
-        _check_files(path, header, verify)
+        verify_manifest(path, header["files"], DemoFormatError, check_digests=verify)
         observations = TensorDict.load_memmap(path / OBSERVATIONS_DIR).to_tensordict()
         _check_contents(observations, header)
+        _check_finite(observations, DemoFormatError, str(path))
     except DemoFormatError:
         raise
     except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:

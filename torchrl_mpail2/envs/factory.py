@@ -13,6 +13,7 @@ from functools import partial
 import torch
 from torchrl.envs import EnvBase, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
 
+from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY, TASK_REWARD_KEY
 from torchrl_mpail2.envs.point_mass import PointMassEnv
 
 __all__ = ["ENV_NAMES", "make_env", "with_bookkeeping"]
@@ -26,8 +27,6 @@ ENV_NAMES = (
     *(f"robosuite/{task}" for task in ROBOSUITE_TASKS),
     *(f"gym/{task}" for task in GYM_TASKS),
 )
-#: Keys written by the bookkeeping transforms; they are not observations of the task.
-BOOKKEEPING_KEYS = ("step_count", "is_init", "episode_task_return")
 
 
 def with_bookkeeping(env: EnvBase) -> TransformedEnv:
@@ -50,8 +49,8 @@ def with_bookkeeping(env: EnvBase) -> TransformedEnv:
         transforms.append(StepCounter())
     if "is_init" not in present:
         transforms.append(InitTracker(init_key="is_init"))
-    if "episode_task_return" not in present:
-        transforms.append(RewardSum(in_keys=["task_reward"], out_keys=["episode_task_return"]))
+    if EPISODE_RETURN_KEY not in present:
+        transforms.append(RewardSum(in_keys=[TASK_REWARD_KEY], out_keys=[EPISODE_RETURN_KEY]))
     if not transforms:
         return env if isinstance(env, TransformedEnv) else TransformedEnv(env)
     if not isinstance(env, TransformedEnv):

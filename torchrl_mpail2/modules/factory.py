@@ -7,15 +7,13 @@ import torch
 from torch import nn
 
 from torchrl_mpail2.config import ModelConfig
+from torchrl_mpail2.envs.keys import observation_keys_of
 from torchrl_mpail2.modules.dynamics import LatentDynamics
 from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 
-#: Keys that environments of this project write next to observations but that are not observations.
-NON_OBSERVATION_KEYS = frozenset({"success", "step_count", "is_init", "episode_task_return", "task_reward",
-                                  "done", "terminated", "truncated", "z", "plan", "policy_influence"})
 
 
 def observation_shapes_from_spec(observation_spec, keys: Sequence[str] | None = None) -> dict[str, tuple[int, ...]]:
@@ -23,19 +21,11 @@ def observation_shapes_from_spec(observation_spec, keys: Sequence[str] | None = 
 
     Args:
         observation_spec (Composite): the environment's ``observation_spec``.
-        keys (Sequence[str], optional): keys to use; by default every float or uint8 leaf except
-            :data:`NON_OBSERVATION_KEYS`.
+        keys (Sequence[str], optional): keys to use; by default those of
+            :func:`~torchrl_mpail2.envs.keys.observation_keys_of`.
     """
     batch_dims = len(observation_spec.shape)
-    if keys is None:
-        keys = [k for k, s in observation_spec.items(True, True)
-                if isinstance(k, str) and k not in NON_OBSERVATION_KEYS
-                and (s.dtype.is_floating_point or s.dtype == torch.uint8)]
-    shapes = {}
-    for key in keys:
-        if key not in observation_spec.keys(True, True):
-            raise KeyError(f"observation key {key!r} not in the observation spec; spec keys: {list(observation_spec.keys(True, True))}")
-        shapes[key] = tuple(observation_spec[key].shape[batch_dims:])
+    shapes = {key: tuple(observation_spec[key].shape[batch_dims:]) for key in observation_keys_of(observation_spec, keys)}
     if not shapes:
         raise ValueError("no observation keys found in the observation spec")
     return shapes
@@ -91,13 +81,28 @@ def make_mpail2_modules(observation_spec, action_spec, cfg: ModelConfig | None =
         observation_keys (Sequence[str], optional): observation keys to encode (default: all observations).
     """
     shapes = observation_shapes_from_spec(observation_spec, observation_keys)
+    return MPAIL2Modules(shapes, check_action_spec(action_spec), cfg)
+
+
+def check_action_spec(action_spec, action_dim: int | None = None) -> int:
+    """Checks that ``action_spec`` is a flat ``[A]`` action bounded to ``[-1, 1]`` (and ``A == action_dim`` if given).
+
+    Returns:
+        int: ``A``.
+
+    Raises:
+        ValueError: naming the spec's shape or bounds.
+    """
     batch_dims = len(action_spec.shape) - 1
     action_shape = tuple(action_spec.shape[batch_dims:])
     if len(action_shape) != 1:
         raise ValueError(f"MPAIL2 needs a flat action [A]; the action spec has shape {list(action_spec.shape)}")
+    if action_dim is not None and action_shape[0] != action_dim:
+        raise ValueError(f"the action spec has {action_shape[0]} dimensions (shape {list(action_spec.shape)}), "
+                         f"the networks act in {action_dim}")
     space = getattr(action_spec, "space", None)
     low, high = getattr(space, "low", None), getattr(space, "high", None)
     if low is None or not (torch.allclose(low.float(), torch.tensor(-1.0)) and torch.allclose(high.float(), torch.tensor(1.0))):
         raise ValueError("MPAIL2 plans in [-1, 1]: wrap the environment so that its actions are bounded to [-1, 1] "
                          f"(got low={None if low is None else low.tolist()}, high={None if high is None else high.tolist()})")
-    return MPAIL2Modules(shapes, action_shape[0], cfg)
+    return action_shape[0]

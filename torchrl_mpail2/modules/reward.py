@@ -58,13 +58,17 @@ class RewardNet(nn.Module):
 
         ``scores`` are raw critic outputs (expert and replayed transitions pooled); the scale is floored
         at ``1e-3``. With ``momentum`` m the running mean forgets with time constant ``1 / (1 - m)`` updates.
+        Scores holding NaN or Inf change nothing.
         """
         if scores.numel() < 2:  # no spread to measure
             return
-        self.scale_updates += 1
-        self.scale_ema.lerp_(scores.detach().float().std(), 1.0 - momentum)
+        # scores holding NaN or Inf leave the running scale as it was (without a host sync)
+        finite = torch.isfinite(scores).all()
+        self.scale_updates += finite.to(self.scale_updates.dtype)
+        std = torch.where(finite, scores.detach().float().std(), self.scale_ema)
+        self.scale_ema.lerp_(std, 1.0 - momentum)
         corrected = self.scale_ema / (1.0 - torch.pow(momentum, self.scale_updates.float()))  # no host sync
-        self.reward_scale.copy_(corrected.clamp_min(1e-3))
+        self.reward_scale.copy_(torch.where(finite, corrected.clamp_min(1e-3), self.reward_scale))
 
     def _select(self, z: Tensor) -> Tensor:
         check_last_dim("reward input latent", z, self.latent_dim)

@@ -11,7 +11,7 @@ from torchrl.modules.planners import MPCPlannerBase
 from torchrl_mpail2.config import PlannerConfig
 from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
-from torchrl_mpail2.modules.factory import MPAIL2Modules
+from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
 from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
@@ -53,7 +53,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     Args:
         modules (MPAIL2Modules): the learned components.
-        action_spec (TensorSpec): the environment's action spec, bounded to ``[-1, 1]``.
+        action_spec (TensorSpec): the environment's action spec, ``[A]`` bounded to ``[-1, 1]`` (checked).
         cfg (PlannerConfig, optional): Table 4 defaults.
 
     Keyword Args:
@@ -75,6 +75,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     def __init__(self, modules: MPAIL2Modules, action_spec, cfg: PlannerConfig | None = None, *,
                  action_key="action", generator: torch.Generator | None = None):
+        check_action_spec(action_spec, modules.action_dim)
         env = LatentWorldModelEnv(modules, action_spec)
         super().__init__(env, action_key=action_key)
         self.cfg = cfg or PlannerConfig()

@@ -12,6 +12,10 @@ from torchrl_mpail2.modules.factory import MPAIL2Modules
 from torchrl_mpail2.modules.policy import is_deterministic
 
 
+class NonFiniteActionError(FloatingPointError):
+    """The learner's actor (planner or policy) returned NaN or Inf actions: its networks have diverged."""
+
+
 class PolicyActor(TensorDictModuleBase):
     r"""Acts with the first step of :math:`\pi_\phi(\cdot \mid e_\omega(o_t))` (no planner).
 
@@ -41,6 +45,8 @@ class WarmupSwitch(TensorDictModuleBase):
     Lets one collector run the paper's random warm-up episodes and then the planner. Random steps also
     write zeros for the actor's other outputs (``extra_out_shapes``), since collectors and replay storages
     lay out their buffers from the first step.
+
+    Non-finite actions of the wrapped actor raise :class:`NonFiniteActionError` before they reach the environment.
 
     It also keeps running sums over the wrapped actor's calls, read and reset by :meth:`pop_stats`: the time
     spent acting and, for a planner, its ``last_stats`` (elite return, plan std), summed as tensors so that
@@ -80,6 +86,11 @@ class WarmupSwitch(TensorDictModuleBase):
             return tensordict
         start = time.perf_counter()
         out = self.actor(tensordict)
+        action = out.get(self.out_keys[0])
+        if not bool(torch.isfinite(action).all()):
+            raise NonFiniteActionError(f"{type(self.actor).__name__} returned non-finite actions "
+                                       f"({int((~torch.isfinite(action)).sum())} of {action.numel()} entries): "
+                                       "its networks or the reward scale hold NaN or Inf.")
         self._seconds += time.perf_counter() - start
         self._calls += 1
         self._actions += max(1, tensordict.batch_size.numel())

@@ -1,16 +1,34 @@
-"""Atomic checkpoint folders: written under a temporary name, then renamed into place."""
+"""Checkpoint folders: written under a temporary name with a checksum manifest, then renamed into place.
+
+A checkpoint folder holds ``state.pt``, optionally the replay buffer under ``replay/``, and ``manifest.json``
+(written last: the episode count and the size and sha256 of every other file, see
+:mod:`torchrl_mpail2.data.checksums`). A folder whose files do not match its manifest is refused with a
+message naming the file; :func:`find_resumable` picks the newest complete checkpoint of a run.
+"""
 from __future__ import annotations
 
+import json
 import os
 import random
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
+from tensordict import TensorDict
+
+from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
 
 STATE_FILE = "state.pt"
 REPLAY_DIR = "replay"
+MANIFEST_FILE = "manifest.json"
+#: Config fields that shape the saved networks: a checkpoint loads only into a run that agrees on them.
+NETWORK_FIELDS = ("train.env", "train.obs", "train.ablation", "model.*")
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, incomplete, corrupted, or does not fit the run that loads it."""
 
 
 def rng_state() -> dict:
@@ -25,9 +43,11 @@ def set_rng_state(state: dict) -> None:
 
 
 def write_checkpoint(path: Path, state: dict, replay_buffer=None) -> Path:
-    """Writes ``state`` (and the replay buffer, if given) to the folder ``path`` atomically.
+    """Writes ``state`` (and the replay buffer, if given) to the folder ``path``, then its manifest.
 
-    A crash at any point leaves either the previous checkpoint or the new one, never a mix.
+    The folder is written as ``.NAME.tmp`` and renamed into place; the previous one is moved to ``.NAME.old``
+    meanwhile. A crash at any point leaves a complete checkpoint under one of the three names, which
+    :func:`find_resumable` finds.
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
@@ -37,6 +57,8 @@ def write_checkpoint(path: Path, state: dict, replay_buffer=None) -> Path:
     torch.save(state, tmp / STATE_FILE)
     if replay_buffer is not None:
         replay_buffer.dumps(tmp / REPLAY_DIR)
+    manifest = {"episodes": state.get("counters", {}).get("episodes"), "files": folder_manifest(tmp)}
+    (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
     shutil.rmtree(old, ignore_errors=True)
     if path.exists():
         os.replace(path, old)
@@ -45,14 +67,140 @@ def write_checkpoint(path: Path, state: dict, replay_buffer=None) -> Path:
     return path
 
 
-def read_checkpoint(path: Path) -> dict:
-    """Loads ``state.pt`` from a checkpoint folder (or a ``.pt`` file), with a clear error if absent."""
-    path = Path(path)
-    file = path / STATE_FILE if path.is_dir() else path
+def read_manifest(path: Path) -> dict | None:
+    """The manifest of a checkpoint folder; None for a folder written before checkpoints had one."""
+    file = Path(path) / MANIFEST_FILE
     if not file.exists():
-        raise FileNotFoundError(f"no checkpoint at {path} (expected {file})")
-    return torch.load(file, map_location="cpu", weights_only=False)
+        return None
+    try:
+        manifest = json.loads(file.read_text())
+        manifest["files"]
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as error:
+        raise CheckpointError(f"{file} is truncated or corrupted ({type(error).__name__}: {error})") from error
+    return manifest
+
+
+def _verify(path: Path, prefix: str) -> None:
+    """Checks the files of ``path`` whose relative name starts with ``prefix`` against the manifest."""
+    manifest = read_manifest(path)
+    if manifest is None:
+        if not (path / STATE_FILE).exists():
+            raise CheckpointError(f"no checkpoint at {path} (expected {path / STATE_FILE})")
+        warnings.warn(f"{path} has no {MANIFEST_FILE} (written before checkpoints had checksums): not verified",
+                      RuntimeWarning, stacklevel=3)
+        return
+    files = {name: entry for name, entry in manifest["files"].items() if name.startswith(prefix)}
+    if not files:
+        raise CheckpointError(f"{path / prefix} is not listed in {path / MANIFEST_FILE}")
+    verify_manifest(path, files, CheckpointError)
+
+
+def read_checkpoint(path: Path) -> dict:
+    """Loads ``state.pt`` from a checkpoint folder (or a ``.pt`` file) after checking it against the manifest.
+
+    Raises:
+        CheckpointError: the checkpoint is missing, truncated or corrupted (the message names the file).
+    """
+    path = Path(path)
+    if path.is_dir():
+        _verify(path, STATE_FILE)
+        file = path / STATE_FILE
+    else:
+        file = path
+        if not file.exists():
+            raise CheckpointError(f"no checkpoint at {path} (expected a folder with {STATE_FILE} or a .pt file)")
+    try:
+        return torch.load(file, map_location="cpu", weights_only=False)
+    except Exception as error:  # torch.load raises EOFError, RuntimeError, UnpicklingError... on damaged files
+        raise CheckpointError(f"{file} cannot be read, it is truncated or corrupted ({type(error).__name__}: {error})") from error
 
 
 def has_replay(path: Path) -> bool:
     return (Path(path) / REPLAY_DIR).exists()
+
+
+def load_replay(replay_buffer, path: Path) -> None:
+    """Restores the replay buffer stored in a checkpoint folder, after checking its files against the manifest.
+
+    A buffer stored with another capacity (a resumed run whose episode budget grew) is copied in order into
+    ``replay_buffer``; the same capacity restores the writer and sampler state exactly.
+    """
+    path = Path(path)
+    _verify(path, REPLAY_DIR)
+    stored_dir = path / REPLAY_DIR / "storage"
+    stored = TensorDict.load_memmap(stored_dir)
+    capacity = replay_buffer._storage.max_size
+    if stored.batch_size[0] == capacity:
+        replay_buffer.loads(path / REPLAY_DIR)
+        return
+    length = json.loads((stored_dir / "storage_metadata.json").read_text())["len"]
+    if length > capacity:
+        raise CheckpointError(f"{stored_dir} holds {length} transitions, more than this run's replay capacity "
+                              f"{capacity} (train.replay_size)")
+    replay_buffer.empty()
+    if length:
+        replay_buffer.extend(stored[:length].to_tensordict())
+
+
+def checkpoint_episodes(path: Path) -> int:
+    """Episodes done when the (verified) checkpoint folder ``path`` was written."""
+    manifest = read_manifest(path)
+    if manifest is not None and manifest.get("episodes") is not None:
+        return int(manifest["episodes"])
+    return int(read_checkpoint(path)["counters"]["episodes"])
+
+
+def find_resumable(checkpoints: Path) -> Path | None:
+    """The newest complete checkpoint under ``checkpoints`` (``last``, numbered ones, or ones a crash left mid-rename).
+
+    Every candidate is checked against its manifest; those holding the replay buffer are preferred (a resume
+    without it would start from an empty buffer), then the most episodes, then ``last``. Falling back to
+    another folder than ``last`` warns with the reason.
+
+    Returns:
+        The folder, or None when there is no checkpoint at all.
+
+    Raises:
+        CheckpointError: checkpoints exist but none is complete (the message names each and why).
+    """
+    checkpoints = Path(checkpoints)
+    folders = sorted(p for p in checkpoints.iterdir() if p.is_dir()) if checkpoints.is_dir() else []
+    if not folders:
+        return None
+    complete, problems = [], []
+    for folder in folders:
+        try:
+            if folder.name.startswith(".") and read_manifest(folder) is None:
+                raise CheckpointError(f"{folder} is incomplete (no {MANIFEST_FILE}: the write was interrupted)")
+            _verify(folder, "")
+            complete.append((has_replay(folder), checkpoint_episodes(folder), folder.name == "last", folder))
+        except CheckpointError as error:
+            problems.append(str(error))
+    if not complete:
+        raise CheckpointError(f"no complete checkpoint under {checkpoints}:\n  " + "\n  ".join(problems))
+    with_replay, episodes, _, chosen = max(complete, key=lambda c: c[:3])
+    if chosen.name != "last" or problems:
+        reasons = "; ".join(problems) or f"{checkpoints / 'last'} is missing"
+        warnings.warn(f"resuming from {chosen} (episode {episodes}): {reasons}", RuntimeWarning, stacklevel=2)
+    if not with_replay:
+        warnings.warn(f"{chosen} holds no replay buffer: the resumed run starts with an empty one", RuntimeWarning,
+                      stacklevel=2)
+    return chosen
+
+
+def _flatten(config: dict) -> dict[str, object]:
+    return {f"{section}.{name}": json.loads(json.dumps(value)) for section, values in config.items()
+            for name, value in values.items()}
+
+
+def check_compatible(saved: dict, current: dict, source: Path) -> None:
+    """Raises :class:`CheckpointError` naming every :data:`NETWORK_FIELDS` field where ``saved`` and ``current`` differ."""
+    saved, current = _flatten(saved), _flatten(current)
+
+    def shapes_networks(name: str) -> bool:
+        return any(name == f or (f.endswith(".*") and name.startswith(f[:-1])) for f in NETWORK_FIELDS)
+
+    differ = [f"{name}: {saved.get(name)!r} in the checkpoint, {current.get(name)!r} now"
+              for name in sorted(set(saved) | set(current)) if shapes_networks(name) and saved.get(name) != current.get(name)]
+    if differ:
+        raise CheckpointError(f"{source} was written for other networks than this run's config:\n  " + "\n  ".join(differ))

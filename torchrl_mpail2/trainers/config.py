@@ -1,10 +1,16 @@
 """Run configuration: the training loop's settings plus the agent's, with command-line overrides."""
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import ClassVar
 
-from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
+from torchrl_mpail2.config import (
+    AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, check_fields,
+    field_kind,
+)
 
 #: Ablations of the paper's Table 2, as switches of one config.
 ABLATIONS = {
@@ -20,6 +26,8 @@ MODEL_FREE_ABLATIONS = ("PM", "PMO")
 LATEST_EPISODE_ABLATIONS = ("O", "PMO")
 
 UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
+#: Fields that an override may change when a run is resumed (the rest is what the run was started with).
+RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads")
 
 
 @dataclass
@@ -65,12 +73,16 @@ class TrainConfig:
     checkpoint_every: int = 10
     """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too).
     The checkpoint kept as ``best`` is the evaluation with the highest any-step success (ties: last-step success)."""
+    last_every: int = 5
+    """Write ``checkpoints/last`` (with the replay buffer) every this many episodes, evaluations aside, so that a
+    crash loses at most this many episodes (0: only at evaluations)."""
     success_window: int = 25
     """Moving window (episodes) of the logged training success rate."""
     run_dir: str | None = None
     """Run folder; None makes runs/<env>-<seed>-<time>."""
     replay_size: int | None = None
-    """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded buffer."""
+    """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded
+    buffer (sized from the episode budget when the run is built, so a resumed run with a larger budget gets more)."""
     logger: str = "csv"
     """csv | wandb | tensorboard | none."""
     ablation: str = "none"
@@ -84,16 +96,20 @@ class TrainConfig:
     computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
     optimiser). See docs/results/speed_notes.md for speed and closeness."""
 
+    RANGES: ClassVar[dict[str, Range]] = {
+        "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
+        "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
+        "eval_episodes": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
+        "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,
+        "eval_seed": NON_NEGATIVE, "demo_steps_after_success": NON_NEGATIVE,
+    }
+
     def __post_init__(self) -> None:
+        check_fields(self)
         if self.ablation not in ABLATIONS:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
-        for name in ("total_episodes", "batch_size", "eval_episodes", "success_window", "num_demos"):
-            if getattr(self, name) <= 0:
-                raise ConfigError(f"TrainConfig.{name} must be > 0, got {getattr(self, name)}")
-        if self.warmup_episodes < 0 or self.warmup_episodes >= self.total_episodes:
+        if self.warmup_episodes >= self.total_episodes:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
-        if self.utd <= 0:
-            raise ConfigError(f"TrainConfig.utd must be > 0, got {self.utd}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
         if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
@@ -103,8 +119,6 @@ class TrainConfig:
             value = getattr(self, name)
             if value is not None and not isinstance(value, dict):
                 raise ConfigError(f"TrainConfig.{name} must be a JSON object (keyword -> value), got {value!r}")
-        if self.demo_steps_after_success is not None and self.demo_steps_after_success < 0:
-            raise ConfigError(f"TrainConfig.demo_steps_after_success must be >= 0 or None, got {self.demo_steps_after_success}")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
 
@@ -145,30 +159,42 @@ def _build(section_cls, values: dict):
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise ConfigError(f"unknown {section_cls.__name__} field(s) {unknown}; known: {sorted(known)}")
-    defaults = section_cls()
-    kwargs = {k: tuple(v) if isinstance(getattr(defaults, k), tuple) and isinstance(v, list) else v for k, v in values.items()}
+    kwargs = {k: tuple(v) if field_kind(section_cls, k).is_tuple and isinstance(v, list) else v for k, v in values.items()}
     return section_cls(**kwargs)
 
 
-def _parse_value(text: str, current):
-    if text.lower() == "null" or (text.lower() == "none" and not isinstance(current, str)):
-        return None
-    if isinstance(current, bool):
+def _parse_scalar(text: str, base: type | None):
+    """``text`` as ``base`` (bool, int, float, str; JSON or the text itself when untyped); ValueError if it is not one."""
+    if base is bool:
         if text.lower() in ("1", "true", "yes"):
             return True
         if text.lower() in ("0", "false", "no"):
             return False
-        raise ConfigError(f"expected a boolean, got {text!r}")
-    if isinstance(current, tuple):
-        return tuple(_parse_value(t, current[0] if current else 0) for t in text.split(",") if t)
-    if isinstance(current, int):
-        return int(text)
-    if isinstance(current, float):
-        return float(text)
+        raise ValueError(text)
+    if base in (int, float):
+        return base(text)
+    if base is str:
+        return text
     try:
-        return json.loads(text) if current is None and text[:1] in "0123456789-[{" else text
+        return json.loads(text) if text[:1] in "0123456789-[{" else text
     except json.JSONDecodeError:
         return text
+
+
+def _parse_value(text: str, section_cls: type, section: str, name: str):
+    """``text`` of an override of ``section.name`` as the field's annotated type (errors name field, value and type)."""
+    kind = field_kind(section_cls, name)
+    if kind.optional and text.lower() in ("null", "none"):
+        return None
+    items = [t.strip() for t in text.split(",") if t.strip()] if kind.is_tuple else [text]
+    parsed = []
+    for item in items:
+        try:
+            parsed.append(_parse_scalar(item, kind.base))
+        except ValueError:
+            which = f" (item {item!r})" if kind.is_tuple else ""
+            raise ConfigError(f"{section}.{name}={text!r}{which}: expected {kind.describe()}") from None
+    return tuple(parsed) if kind.is_tuple else parsed[0]
 
 
 def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
@@ -180,28 +206,57 @@ def apply_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentCo
         (256, (64, 64))
     """
     data = cfg.to_dict()
+    pairs = _pairs(overrides)
+    for path, text in pairs:
+        section, _, name = _field_path(path).partition(".")
+        if section not in data:
+            raise ConfigError(f"unknown config section {section!r} in override {path!r}; sections: {sorted(data)}")
+        if name not in data[section]:
+            raise ConfigError(f"unknown field {section}.{name}; known: {sorted(data[section])}")
+        data[section][name] = _parse_value(text, type(getattr(cfg, section)), section, name)
+    return ExperimentConfig.from_dict(data)
+
+
+def _pairs(overrides: list[str]) -> list[tuple[str, str]]:
+    """``section.field=value`` and ``--section.field value`` items as ``(path, text)``."""
     pairs, i = [], 0
     while i < len(overrides):
         item = overrides[i].removeprefix("--")
         if "=" in item:
-            pairs.append(item.split("=", 1))
+            pairs.append(tuple(item.split("=", 1)))
             i += 1
         elif i + 1 < len(overrides):
             pairs.append((item, overrides[i + 1]))
             i += 2
         else:
             raise ConfigError(f"override {overrides[i]!r} has no value")
-    for path, text in pairs:
-        section, _, name = path.partition(".")
-        if not name:  # bare names go to the train section
-            section, name = "train", section
-        section = section.replace("-", "_")
-        name = name.replace("-", "_")
-        if section not in data:
-            raise ConfigError(f"unknown config section {section!r} in override {path!r}; sections: {sorted(data)}")
-        if name not in data[section]:
-            raise ConfigError(f"unknown field {section}.{name}; known: {sorted(data[section])}")
-        current = getattr(getattr(cfg, section), name)
-        data[section][name] = _parse_value(text, current)
-    return ExperimentConfig.from_dict(data)
+    return pairs
 
+
+def _field_path(path: str) -> str:
+    section, _, name = path.partition(".")
+    if not name:  # bare names go to the train section
+        section, name = "train", section
+    return f"{section.replace('-', '_')}.{name.replace('-', '_')}"
+
+
+def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
+    """:func:`apply_overrides` for a resumed run: only the fields of :data:`RESUME_FIELDS` may change.
+
+    Examples:
+        >>> apply_resume_overrides(ExperimentConfig(), ["train.total_episodes=500"]).train.total_episodes
+        500
+    """
+    refused = [path for path, _ in _pairs(overrides) if _field_path(path) not in RESUME_FIELDS]
+    if refused:
+        raise ConfigError(f"a resumed run keeps its saved config; {refused} cannot change (resumable: {list(RESUME_FIELDS)})")
+    return apply_overrides(cfg, overrides)
+
+
+def resolve_paths(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfig:
+    """A copy of ``cfg`` whose run folder is ``run_dir`` and whose paths are absolute, so that the saved config
+    resumes from any working directory."""
+    demos = cfg.train.demos
+    train = dataclasses.replace(cfg.train, run_dir=str(Path(run_dir).resolve()),
+                                demos=None if demos is None else str(Path(demos).resolve()))
+    return dataclasses.replace(cfg, train=train)

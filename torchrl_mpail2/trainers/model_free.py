@@ -13,6 +13,8 @@ class ModelFreeUpdater(MPAIL2Updater):
     since there is no world model to train off-policy.
     """
 
-    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None) -> TensorDictBase:
+    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None) -> TensorDictBase | None:
         td = policy_tensordict if policy_tensordict is not None else tensordict
+        if self.skip_nonfinite(td):
+            return None
         return self._reward_value_actor(td).apply(lambda x: x.detach())

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,10 +13,28 @@ EVAL_FILE = "eval.jsonl"
 
 
 def read_jsonl(path: Path) -> list[dict]:
+    """Records of a JSON-lines log. A torn last line (a kill mid-write) is dropped with a warning.
+
+    Raises:
+        ValueError: a line other than the last one is not JSON (the message names the file and the line).
+    """
     path = Path(path)
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    lines = path.read_text().splitlines()
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            if number == len(lines):
+                warnings.warn(f"{path}: dropping its torn last line {number} ({line[:60]!r})", RuntimeWarning,
+                              stacklevel=2)
+                break
+            raise ValueError(f"{path}, line {number} is not JSON ({error}): {line[:80]!r}") from error
+    return records
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:

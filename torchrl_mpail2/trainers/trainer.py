@@ -26,12 +26,14 @@ from torchrl_mpail2.modules.factory import make_mpail2_modules
 from torchrl_mpail2.objectives.model_free import DACLoss
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
-from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
+from torchrl_mpail2.planners.policy_actor import NonFiniteActionError, PolicyActor, WarmupSwitch
 from torchrl_mpail2.trainers import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import (
-    LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig,
+    LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig, apply_resume_overrides,
+    resolve_paths,
 )
 from torchrl_mpail2.trainers.logs import RunLogger
+from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
 from torchrl_mpail2.trainers.update import MPAIL2Updater
 
@@ -68,6 +70,9 @@ class MPAIL2Trainer:
         env_fn (Callable, optional): builds one environment (default: ``make_env(cfg.train.env, ...)``).
         demos (Demonstrations, optional): expert observations (default: ``cfg.train.demos`` or scripted demos).
         run_dir (str or Path, optional): overrides ``cfg.train.run_dir``.
+        if_exists (str): what to do with a run folder that already holds files: ``"refuse"`` (default),
+            ``"overwrite"`` them, or ``"resume"`` (what :meth:`resume` passes). The folder is locked while the
+            trainer uses it, so that two trainings cannot share it.
 
     Examples:
         >>> from torchrl_mpail2.trainers import ExperimentConfig, MPAIL2Trainer, preset  # doctest: +SKIP
@@ -76,7 +81,17 @@ class MPAIL2Trainer:
     """
 
     def __init__(self, cfg: ExperimentConfig, *, env_fn: Callable | None = None, demos: Demonstrations | None = None,
-                 run_dir: str | Path | None = None):
+                 run_dir: str | Path | None = None, if_exists: str = "refuse"):
+        t = cfg.train
+        run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
+        self.run_folder = RunFolder(run_dir, if_exists)
+        try:
+            self._build(resolve_paths(cfg, run_dir), env_fn, demos)
+        except BaseException:
+            self.run_folder.discard()  # a run that fails to start leaves nothing behind
+            raise
+
+    def _build(self, cfg: ExperimentConfig, env_fn: Callable | None, demos: Demonstrations | None) -> None:
         self.cfg = cfg
         t = cfg.train
         if t.threads:
@@ -88,8 +103,7 @@ class MPAIL2Trainer:
             def env_fn(seed=t.seed):
                 return make_env(t.env, obs=t.obs, seed=seed, **(t.env_kwargs or {}))
         self.env_fn = env_fn
-        self.run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.run_dir = Path(t.run_dir)
         self.env = env_fn()
         self.demos = demos if demos is not None else self._load_or_record_demos()
         model_free = t.ablation in MODEL_FREE_ABLATIONS
@@ -114,6 +128,7 @@ class MPAIL2Trainer:
         self.latest = self._make_replay(None, horizon) if t.ablation in LATEST_EPISODE_ABLATIONS else None
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
         self.best_eval = (-math.inf, -math.inf)  # (any-step, last-step) success of the best evaluation
+        self._last_written = None  # episode count of the newest checkpoints/last
         (self.run_dir / "config.json").write_text(cfg.to_json())
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
@@ -121,10 +136,10 @@ class MPAIL2Trainer:
     def _load_or_record_demos(self) -> Demonstrations:
         t = self.cfg.train
         if t.demos is not None:
-            return load_demos(t.demos, self.env.observation_spec)
+            return load_demos(t.demos, self.env)
         path = default_demo_dir(self.cfg)
         if path.exists():
-            return load_demos(path, self.env.observation_spec)
+            return load_demos(path, self.env)
         demo_env = self.env_fn(seed=t.seed + 1_000_000)
         # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
         options = {"seed": t.seed + 1_000_000, **t.expert_kwargs} if t.expert_kwargs else {}
@@ -165,16 +180,22 @@ class MPAIL2Trainer:
 
     def update(self, num_updates: int) -> dict:
         """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""
-        sums = None
+        sums, applied, nonfinite_keys = None, 0, set()
         start = time.perf_counter()
         for _ in range(num_updates):
             td = self.sample_batch(self.replay)
             td_policy = self.sample_batch(self.latest) if self.latest is not None else None
             metrics = self.updater.update(td, td_policy)
+            if metrics is None:  # a batch holding NaN or Inf, skipped whole
+                nonfinite_keys.update(self.updater.last_nonfinite_keys)
+                continue
+            applied += 1
             sums = metrics if sums is None else sums + metrics  # stays on device: one transfer per episode
-        self.counters["updates"] += num_updates
-        out = {k: float(v) / max(num_updates, 1) for k, v in ({} if sums is None else sums).items()}
+        self.counters["updates"] += applied
+        out = {k: float(v) / max(applied, 1) for k, v in ({} if sums is None else sums).items()}
         out["nonfinite_skips"] = float(sum(self.updater.skipped.values()))  # a running count, not a mean
+        if nonfinite_keys:
+            out["nonfinite_batch_keys"] = sorted(nonfinite_keys)
         out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
         return out
 
@@ -231,12 +252,20 @@ class MPAIL2Trainer:
                 "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict()}
 
     def save(self, tag: str, with_replay: bool = False) -> Path:
+        if tag == "last":
+            self._last_written = self.counters["episodes"]
         return ckpt.write_checkpoint(self.run_dir / "checkpoints" / tag, self.state_dict(),
                                      self.replay if with_replay else None)
 
     def load(self, path: str | Path, with_replay: bool = True) -> None:
-        """Restores everything a checkpoint holds (the replay buffer too, when present and asked for)."""
+        """Restores everything a checkpoint holds (the replay buffer too, when present and asked for).
+
+        Raises:
+            CheckpointError: the checkpoint is missing, truncated or corrupted, or was written for other
+                networks (the message names the file, or the config fields that differ).
+        """
         state = ckpt.read_checkpoint(path)
+        ckpt.check_compatible(state["config"], self.cfg.to_dict(), Path(path))
         self.modules.load_state_dict(state["modules"])
         self.loss.load_state_dict(state["loss"])
         self.updater.load_state_dict(state["updater"])
@@ -249,7 +278,7 @@ class MPAIL2Trainer:
         # older checkpoints kept the last-step success alone
         self.best_eval = tuple(best) if isinstance(best, (list, tuple)) else (-math.inf, best)
         if with_replay and ckpt.has_replay(path):
-            self.replay.loads(Path(path) / ckpt.REPLAY_DIR)
+            ckpt.load_replay(self.replay, path)
 
     def init_from(self, path: str | Path, transfer: str = "all") -> None:
         """Copies weights of another run's checkpoint: ``all`` components or only the ``world-model``."""
@@ -263,14 +292,42 @@ class MPAIL2Trainer:
             self.loss.value_loss.target_qvalue_network_params.data.update_(self.loss.value_loss.qvalue_network_params.data)
 
     @classmethod
-    def resume(cls, run_dir: str | Path, **kwargs) -> "MPAIL2Trainer":
-        """Rebuilds a run from its ``config.json`` and continues from ``checkpoints/last``."""
+    def resume(cls, run_dir: str | Path, overrides: list[str] | None = None, **kwargs) -> "MPAIL2Trainer":
+        """Rebuilds a run from its ``config.json`` and continues from its newest complete checkpoint.
+
+        That is ``checkpoints/last`` unless a crash left it missing or damaged (see
+        :func:`~torchrl_mpail2.trainers.checkpoint.find_resumable`); a run killed before its first checkpoint
+        starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.trainers.config.RESUME_FIELDS`,
+        e.g. ``["train.total_episodes=400"]`` to extend a finished run.
+        """
         run_dir = Path(run_dir)
-        cfg = ExperimentConfig.from_dict(json.loads((run_dir / "config.json").read_text()))
-        trainer = cls(cfg, run_dir=run_dir, **kwargs)
-        trainer.load(run_dir / "checkpoints" / "last")
-        trainer.logger.truncate_after(trainer.counters["episodes"])
+        config_file = run_dir / "config.json"
+        if not config_file.is_file():
+            raise FileNotFoundError(f"cannot resume {run_dir}: {config_file} is missing (not a run folder?)")
+        try:
+            data = json.loads(config_file.read_text())
+        except json.JSONDecodeError as error:
+            raise ValueError(f"cannot resume {run_dir}: {config_file} is not valid JSON ({error})") from error
+        cfg = apply_resume_overrides(ExperimentConfig.from_dict(data), overrides or [])
+        trainer = cls(cfg, run_dir=run_dir, if_exists="resume", **kwargs)
+        try:
+            checkpoint = ckpt.find_resumable(run_dir / "checkpoints")
+            if checkpoint is None:
+                warnings.warn(f"{run_dir} holds no checkpoint yet: the run starts over", RuntimeWarning, stacklevel=2)
+            else:
+                trainer.load(checkpoint)
+            if cfg.train.total_episodes < trainer.counters["episodes"]:
+                raise ValueError(f"train.total_episodes={cfg.train.total_episodes} is below the "
+                                 f"{trainer.counters['episodes']} episodes {run_dir} already ran")
+            trainer.logger.truncate_after(trainer.counters["episodes"])
+        except BaseException:
+            trainer.close()
+            raise
         return trainer
+
+    def close(self) -> None:
+        """Releases the run folder (the next :meth:`train` takes it again)."""
+        self.run_folder.release()
 
     # ---- the loop --------------------------------------------------------------------------------
     def _collector(self) -> Collector:
@@ -288,13 +345,18 @@ class MPAIL2Trainer:
 
     def _next_episode(self, state: dict) -> TensorDict:
         """Next complete episode from the collector. A simulator exception ends that episode with a
-        warning; a fresh collector (and environment) takes over and training goes on."""
+        warning; a fresh collector (and environment) takes over and training goes on. Non-finite actions
+        of the learner's own actor stop training at once (a new environment would not help)."""
         while True:
             if state.get("iterator") is None:
                 state["collector"] = self._collector()
                 state["iterator"] = iter(state["collector"])
             try:
                 return next(state["iterator"])
+            except NonFiniteActionError as err:
+                skipped = dict(self.updater.skipped)
+                raise NonFiniteActionError(f"episode {self.counters['episodes'] + 1}, after {self.counters['updates']} "
+                                           f"updates: {err} Non-finite skips so far: {skipped or 'none'}.") from err
             except (RuntimeError, ValueError, FloatingPointError) as err:
                 self.counters["warnings"] += 1
                 if self.counters["warnings"] > 100:
@@ -305,7 +367,17 @@ class MPAIL2Trainer:
                 state["iterator"] = None
 
     def train(self) -> dict:
-        """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time)."""
+        """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time).
+
+        The run folder is locked meanwhile (released when training ends, by an error too).
+        """
+        self.run_folder.acquire()
+        try:
+            return self._train()
+        finally:
+            self.close()
+
+    def _train(self) -> dict:
         t = self.cfg.train
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start, evaluation, state = time.perf_counter(), None, {}
@@ -334,6 +406,8 @@ class MPAIL2Trainer:
                     evaluation = self._evaluate_and_checkpoint()
                 if t.checkpoint_every and done % t.checkpoint_every == 0:
                     self.save(f"episode_{done:06d}")
+                if t.last_every and done % t.last_every == 0 and self._last_written != done:
+                    self.save("last", with_replay=True)  # bounds what a crash loses to last_every episodes
                 bar.update(1)
                 bar.set_postfix(success=f"{self.logger.success_rate(t.success_window):.2f}",
                                 eval="-" if evaluation is None else f"{evaluation['success_rate_any_step']:.2f}",
@@ -344,7 +418,8 @@ class MPAIL2Trainer:
                 state["collector"].shutdown()
         if t.eval_every and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
             evaluation = self._evaluate_and_checkpoint()  # stopped early: evaluate where it stopped
-        self.save("last", with_replay=True)
+        if self._last_written != self.counters["episodes"]:
+            self.save("last", with_replay=True)
         from torchrl_mpail2.trainers.plots import plot_run
 
         plot_run(self.run_dir, t.success_window)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import ctypes
+import logging
 from collections import Counter
 from contextlib import nullcontext
 
@@ -13,10 +14,21 @@ from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transi
 from torchrl_mpail2.objectives._imagination import stop_gradient_precision
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 
+log = logging.getLogger(__name__)
+
 # glibc mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _MMAP_THRESHOLD_BYTES = 1 << 30
 _TRIM_THRESHOLD_BYTES = (1 << 31) - 1
+
+
+def nonfinite_keys(tensordict: TensorDictBase) -> list[str]:
+    """Floating-point entries of ``tensordict`` holding NaN or Inf, as dotted names (``"next.observation"``)."""
+    bad = []
+    for key, value in tensordict.items(include_nested=True, leaves_only=True):
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            bad.append(key if isinstance(key, str) else ".".join(key))
+    return bad
 
 
 def retain_freed_memory() -> bool:
@@ -38,9 +50,11 @@ def retain_freed_memory() -> bool:
 class MPAIL2Updater:
     """Runs dynamics -> reward -> value (+ Polyak) -> policy (+ alpha) on one batch.
 
-    Adam optimisers and gradient clips come from :meth:`MPAIL2Loss.param_groups` (Table 4). A stage
-    whose loss is not finite is skipped (no gradient step) and counted in ``skipped``, so that one bad
-    batch cannot corrupt the weights.
+    Adam optimisers and gradient clips come from :meth:`MPAIL2Loss.param_groups` (Table 4). A batch holding
+    NaN or Inf anywhere is skipped as a whole before it touches any state (weights, optimisers, running
+    reward scale), counted in ``skipped["batch"]`` and logged with its non-finite keys (also kept in
+    ``last_nonfinite_keys``); :meth:`update` then returns None. A stage whose loss is not finite is skipped
+    (no gradient step) and counted in ``skipped`` under its name, so that one bad batch cannot corrupt the weights.
 
     Args:
         loss (MPAIL2Loss): the composite loss.
@@ -90,6 +104,7 @@ class MPAIL2Updater:
             self.optimizers[stage] = torch.optim.Adam([{"params": g["params"], "lr": g["lr"]} for g in groups])
         self.target_updater = SoftUpdate(loss.value_loss, tau=loss.cfg.tau)
         self.skipped: Counter[str] = Counter()
+        self.last_nonfinite_keys: list[str] = []
 
     def _forward_precision(self):
         """bf16 autocast for one stage's forward pass (``bf16=True``), else nothing. Entered and left per stage:
@@ -98,6 +113,17 @@ class MPAIL2Updater:
         if not self.bf16:
             return nullcontext()
         return torch.autocast(self.device_type, dtype=torch.bfloat16)
+
+    def skip_nonfinite(self, *tensordicts: TensorDictBase | None) -> bool:
+        """True (and counted, and logged with the keys) when any of the batches holds NaN or Inf."""
+        bad = sorted({key for td in tensordicts if td is not None for key in nonfinite_keys(td)})
+        if not bad:
+            return False
+        self.skipped["batch"] += 1
+        self.last_nonfinite_keys = bad
+        log.warning("skipping a batch with NaN or Inf under %s (%d batch(es) skipped so far)", bad,
+                    self.skipped["batch"])
+        return True
 
     def _step(self, stage: str, value: torch.Tensor) -> None:
         if not bool(torch.isfinite(value)):
@@ -112,7 +138,7 @@ class MPAIL2Updater:
             torch.nn.utils.clip_grad_norm_(params, clip)
         optimizer.step()
 
-    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None) -> TensorDictBase:
+    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None) -> TensorDictBase | None:
         """One update on a replay batch ``[B, T]`` that carries expert pairs under ``"expert"``.
 
         Args:
@@ -121,8 +147,10 @@ class MPAIL2Updater:
                 paper's [-O] ablation trains those on the latest episode only, the world model off-policy).
 
         Returns:
-            TensorDict: every ``loss_*`` term and diagnostic, detached.
+            TensorDict: every ``loss_*`` term and diagnostic, detached; None when the batch was skipped.
         """
+        if self.skip_nonfinite(tensordict, policy_tensordict):
+            return None
         with self._forward_precision():
             metrics = self.loss.dynamics_loss(tensordict)
         self._step("dynamics", metrics["loss_dynamics"])
