@@ -20,7 +20,8 @@ from pathlib import Path
 
 import torch
 
-from torchrl_mpail2.envs.robosuite_env import TASKS, make_robosuite_env
+from torchrl_mpail2.envs.names import ROBOSUITE_TASKS as TASKS
+from torchrl_mpail2.envs.robosuite_env import make_robosuite_env
 from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert
 
 RESULTS_PATH = Path(__file__).resolve().parents[1] / "docs" / "results" / "scripted_experts.json"

@@ -2,7 +2,9 @@
 
 ``make_robosuite_env`` is re-exported lazily: robosuite is optional and slow to import.
 """
-from torchrl_mpail2.envs.factory import ENV_NAMES, make_env, with_bookkeeping
+from torchrl_mpail2.envs.factory import make_env
+from torchrl_mpail2.envs.keys import with_bookkeeping
+from torchrl_mpail2.envs.names import ENV_NAMES
 from torchrl_mpail2.envs.gym_env import make_gym_env
 from torchrl_mpail2.envs.point_mass import PointMassEnv
 

@@ -11,54 +11,13 @@ from __future__ import annotations
 from functools import partial
 
 import torch
-from torchrl.envs import EnvBase, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import SerialEnv, TransformedEnv
 
-from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY, TASK_REWARD_KEY
+from torchrl_mpail2.envs.keys import with_bookkeeping
+from torchrl_mpail2.envs.names import ENV_NAMES, POINT_MASS
 from torchrl_mpail2.envs.point_mass import PointMassEnv
 
 __all__ = ["ENV_NAMES", "make_env", "with_bookkeeping"]
-
-POINT_MASS = "point_mass"
-ROBOSUITE_TASKS = ("Lift", "Push", "PushMirrored")
-GYM_TASKS = ("Hopper-v5", "Ant-v5", "Humanoid-v5")
-#: Every name :func:`make_env` accepts.
-ENV_NAMES = (
-    POINT_MASS,
-    *(f"robosuite/{task}" for task in ROBOSUITE_TASKS),
-    *(f"gym/{task}" for task in GYM_TASKS),
-)
-
-
-def with_bookkeeping(env: EnvBase) -> TransformedEnv:
-    """Appends ``StepCounter``, ``InitTracker`` and ``RewardSum`` where they are missing.
-
-    Idempotent: a transform is skipped when its output key is already in the observation spec,
-    so envs built by other factories that already carry them are not double-wrapped.
-    ``StepCounter`` gets no ``max_steps``: truncation is the base env's job.
-
-    Examples:
-        >>> env = with_bookkeeping(PointMassEnv(seed=0))
-        >>> sorted(k for k in env.observation_spec.keys() if k != "observation")
-        ['episode_task_return', 'is_init', 'step_count', 'success']
-        >>> with_bookkeeping(env) is env
-        True
-    """
-    present = set(env.observation_spec.keys())
-    transforms = []
-    if "step_count" not in present:
-        transforms.append(StepCounter())
-    if "is_init" not in present:
-        transforms.append(InitTracker(init_key="is_init"))
-    if EPISODE_RETURN_KEY not in present:
-        transforms.append(RewardSum(in_keys=[TASK_REWARD_KEY], out_keys=[EPISODE_RETURN_KEY]))
-    if not transforms:
-        return env if isinstance(env, TransformedEnv) else TransformedEnv(env)
-    if not isinstance(env, TransformedEnv):
-        env = TransformedEnv(env)
-    for transform in transforms:
-        env.append_transform(transform)
-    return env
-
 
 def make_env(
     name: str,

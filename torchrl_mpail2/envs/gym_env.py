@@ -20,11 +20,11 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
-from torchrl_mpail2.envs.factory import with_bookkeeping
+from torchrl_mpail2.envs.keys import with_bookkeeping
+from torchrl_mpail2.envs.names import GYM_TASKS
 
-__all__ = ["GYM_ENV_IDS", "ConstantSuccess", "make_gym_env"]
+__all__ = ["ConstantSuccess", "make_gym_env"]
 
-GYM_ENV_IDS = ("Hopper-v5", "Ant-v5", "Humanoid-v5")
 
 
 class ConstantSuccess(Transform):
@@ -81,8 +81,8 @@ def make_gym_env(
         >>> env.action_spec.space.high.tolist()
         [1.0, 1.0, 1.0]
     """
-    if env_id not in GYM_ENV_IDS:
-        raise ValueError(f"Unknown gym env {env_id!r}. Valid ids: {', '.join(GYM_ENV_IDS)}.")
+    if env_id not in GYM_TASKS:
+        raise ValueError(f"Unknown gym env {env_id!r}. Valid ids: {', '.join(GYM_TASKS)}.")
     base = GymEnv(env_id, device=device)
     transforms = [
         DoubleToFloat(),

@@ -14,7 +14,8 @@ import torch
 from torchrl.data import Composite
 from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TrajCounter, TransformedEnv
 
-__all__ = ["EPISODE_RETURN_KEY", "TASK_FLAG_KEYS", "TASK_REWARD_KEY", "non_observation_keys", "observation_keys_of"]
+__all__ = ["EPISODE_RETURN_KEY", "TASK_FLAG_KEYS", "TASK_REWARD_KEY", "non_observation_keys", "observation_keys_of",
+           "with_bookkeeping"]
 
 #: Flags the project's environments write beside observations (no TorchRL transform declares them).
 TASK_FLAG_KEYS = ("success",)
@@ -72,3 +73,35 @@ def observation_keys_of(source: EnvBase | Composite, keys: Sequence[str] | None 
     excluded = non_observation_keys(source)
     return [key for key, leaf in spec.items(True, True)
             if isinstance(key, str) and key not in excluded and (leaf.dtype.is_floating_point or leaf.dtype == torch.uint8)]
+
+
+def with_bookkeeping(env: EnvBase) -> TransformedEnv:
+    """Appends ``StepCounter``, ``InitTracker`` and ``RewardSum`` where they are missing.
+
+    Idempotent: a transform is skipped when its output key is already in the observation spec,
+    so envs built by other factories that already carry them are not double-wrapped.
+    ``StepCounter`` gets no ``max_steps``: truncation is the base env's job.
+
+    Examples:
+        >>> from torchrl_mpail2.envs.point_mass import PointMassEnv
+        >>> env = with_bookkeeping(PointMassEnv(seed=0))
+        >>> sorted(k for k in env.observation_spec.keys() if k != "observation")
+        ['episode_task_return', 'is_init', 'step_count', 'success']
+        >>> with_bookkeeping(env) is env
+        True
+    """
+    present = set(env.observation_spec.keys())
+    transforms = []
+    if "step_count" not in present:
+        transforms.append(StepCounter())
+    if "is_init" not in present:
+        transforms.append(InitTracker(init_key="is_init"))
+    if EPISODE_RETURN_KEY not in present:
+        transforms.append(RewardSum(in_keys=[TASK_REWARD_KEY], out_keys=[EPISODE_RETURN_KEY]))
+    if not transforms:
+        return env if isinstance(env, TransformedEnv) else TransformedEnv(env)
+    if not isinstance(env, TransformedEnv):
+        env = TransformedEnv(env)
+    for transform in transforms:
+        env.append_transform(transform)
+    return env

@@ -45,11 +45,12 @@ import robosuite  # noqa: E402
 import torch  # noqa: E402
 from tensordict import TensorDict, TensorDictBase  # noqa: E402
 from torchrl.data import Bounded, Categorical, Composite, Unbounded  # noqa: E402
-from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TransformedEnv  # noqa: E402
+from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
 
+from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
+from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
 from torchrl_mpail2.envs import push_task  # noqa: E402, F401  (registers Push / PushMirrored, patches mujoco compat)
 
-TASKS = ("Lift", "Push", "PushMirrored")
 OBS_MODES = ("state", "pixels", "external_pixels")
 DEFAULT_HORIZON = {"Lift": 100, "Push": 100, "PushMirrored": 100}
 CONTROL_FREQ_HZ = 20
@@ -94,8 +95,8 @@ _OSC_POSITION_ARM = {
 
 
 def _check_names(task: str, obs: str) -> None:
-    if task not in TASKS:
-        raise ValueError(f"Unknown robosuite task {task!r}; valid tasks: {', '.join(TASKS)}.")
+    if task not in ROBOSUITE_TASKS:
+        raise ValueError(f"Unknown robosuite task {task!r}; valid tasks: {', '.join(ROBOSUITE_TASKS)}.")
     if obs not in OBS_MODES:
         raise ValueError(f"Unknown observation mode {obs!r}; valid modes: {', '.join(OBS_MODES)}.")
 
@@ -372,7 +373,4 @@ def make_robosuite_env(
     base_env = RobosuiteEnv(task, obs, horizon=horizon, seed=seed, device=device, gripper=gripper,
                             observe_gripper_command=observe_gripper_command)
     base_env.set_seed(seed)
-    env = TransformedEnv(base_env, StepCounter())
-    env.append_transform(InitTracker(init_key="is_init"))
-    env.append_transform(RewardSum(in_keys=["task_reward"], out_keys=["episode_task_return"]))
-    return env
+    return with_bookkeeping(base_env)

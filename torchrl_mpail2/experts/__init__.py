@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from torchrl.envs import EnvBase
 
+from torchrl_mpail2.envs.names import ROBOSUITE_ENV_NAMES
 from torchrl_mpail2.experts.point_mass import PointMassExpert
 
 __all__ = ["PointMassExpert", "get_expert"]
@@ -32,7 +33,7 @@ def get_expert(env_name: str, env: EnvBase, **expert_kwargs):
         >>> type(expert).__name__
         'PointMassExpert'
     """
-    is_scripted = env_name in ("robosuite/Lift", "robosuite/Push", "robosuite/PushMirrored")
+    is_scripted = env_name in ROBOSUITE_ENV_NAMES
     if expert_kwargs and not is_scripted:
         raise ValueError(f"The expert of {env_name!r} takes no options, got {sorted(expert_kwargs)}.")
     if env_name == "point_mass":
