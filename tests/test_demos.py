@@ -239,3 +239,18 @@ def test_cli_lift_speed_is_lift_only(tmp_path):
     with pytest.raises(SystemExit, match="robosuite/Lift only"):
         demos_cli.main(["record", "--env", "point_mass", "--lift-speed", "0.01", "--out", str(tmp_path / "pm")])
     assert not (tmp_path / "pm").exists()
+
+
+def test_recordings_end_steps_after_the_first_success():
+    env = make_env("point_mass")
+    full = record_demos(env, PointMassExpert(), episodes=2, progress=False, seed=4)
+    cut = record_demos(env, PointMassExpert(), episodes=2, progress=False, seed=4, steps_after_success=3)
+    for i in range(2):
+        env.set_seed(4 + i)
+        success = env.rollout(1000, PointMassExpert(), break_when_any_done=True)["next", "success"].reshape(-1)
+        first = int(success.float().argmax())  # the step whose next observation first succeeds
+        assert success.any() and cut.episode_lengths[i] == min(first + 1 + 3, full.episode_lengths[i]) < 50
+        torch.testing.assert_close(cut.episode(i)["observation"],
+                                   full.episode(i)["observation"][: cut.episode_lengths[i] + 1])
+    with pytest.raises(ValueError, match="steps_after_success"):
+        record_demos(env, PointMassExpert(), episodes=1, progress=False, steps_after_success=-1)

@@ -20,6 +20,7 @@ DRIFT_CORRELATION = 0.85  # AR(1) coefficient of the drift per step (about 7 ste
 VIA_OFFSET_MAX = 0.06  # metres: horizontal offset of the via point the approach passes through
 PAUSE_PROBABILITY = 0.02  # per step: the chance that a pause starts
 PAUSE_STEPS = (2, 6)  # length of a pause, in steps (upper bound excluded)
+CAREFUL_DRIFT = 0.25  # share of the drift kept while grasping and holding (a teleoperator slows down there)
 
 
 @dataclass
@@ -64,11 +65,17 @@ class HumanLikeMotion:
             self.via_pending = False
         return via if self.via_pending else target_xy
 
-    def shape(self, command: np.ndarray) -> np.ndarray:
-        """``command [3]`` (position, action units) -> the same with this episode's tempo, drift and pauses."""
+    def shape(self, command: np.ndarray, careful: bool = False) -> np.ndarray:
+        """``command [3]`` (position, action units) -> the same with this episode's tempo, drift and pauses.
+
+        ``careful`` (grasping, holding): a fraction of the drift, no new pauses.
+        """
         s = self.style
         innovation = s.drift_std * np.sqrt(1.0 - DRIFT_CORRELATION**2) * self.rng.standard_normal(3)
         self._drift = DRIFT_CORRELATION * self._drift + innovation
+        if careful:
+            self._pause_left = 0
+            return np.clip(s.gain * command, -s.speed, s.speed) + CAREFUL_DRIFT * self._drift
         if self._pause_left == 0 and self.rng.uniform() < PAUSE_PROBABILITY:
             self._pause_left = int(self.rng.integers(*PAUSE_STEPS))
         if self._pause_left > 0:

@@ -63,10 +63,15 @@ class _ScriptedExpert(TensorDictModuleBase):
     def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
         raise NotImplementedError
 
+    def is_careful(self, action: np.ndarray) -> bool:
+        """Whether a human-like style moves carefully at this step (no pauses, little drift)."""
+        return False
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self.scripted_action(self.env.privileged_state())
         if self.motion is not None:
-            action = np.concatenate([np.clip(self.motion.shape(action[:3]), -1.0, 1.0), action[3:]])
+            careful = self.is_careful(action)
+            action = np.concatenate([np.clip(self.motion.shape(action[:3], careful), -1.0, 1.0), action[3:]])
         if self.noise_std > 0:
             action = np.clip(action + self.noise_std * self._rng.standard_normal(action.shape), -1.0, 1.0)
         action = torch.as_tensor(action, dtype=torch.float32, device=self.env.device)
@@ -98,6 +103,10 @@ class LiftExpert(_ScriptedExpert):
     """
 
     tasks = ("Lift",)
+
+    def is_careful(self, action: np.ndarray) -> bool:
+        return bool(action[3] == GRIPPER_CLOSE)  # grasping or holding the cube
+
     lift_height = 0.15  # above the table; Lift succeeds once the cube is 4 cm up
     hover_clearance = 0.06  # grip site above the cube centre while aligning
     aligned_tolerance = 0.01
