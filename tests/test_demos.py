@@ -239,3 +239,12 @@ def test_cli_lift_speed_is_lift_only(tmp_path):
     with pytest.raises(SystemExit, match="robosuite/Lift only"):
         demos_cli.main(["record", "--env", "point_mass", "--lift-speed", "0.01", "--out", str(tmp_path / "pm")])
     assert not (tmp_path / "pm").exists()
+
+
+def test_demo_api_is_reexported_at_the_top_level():
+    import torchrl_mpail2
+    import torchrl_mpail2.data as data
+
+    for name in ("record_demos", "load_demos", "save_demos", "demos_from_arrays", "DemoBuffer", "Demonstrations"):
+        assert getattr(torchrl_mpail2, name) is getattr(data, name), name  # one home: torchrl_mpail2.data
+        assert name in torchrl_mpail2.__all__
