@@ -109,10 +109,8 @@ class MPAIL2Trainer:
         model_free = t.ablation in MODEL_FREE_ABLATIONS
         # the model-free ablations act with a single-step policy, as in the paper's baselines
         model_cfg = dataclasses.replace(cfg.model, horizon=1) if model_free else cfg.model
-        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg,
-                                           observation_keys=self.demos.observation_keys)
+        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg, demos=self.demos)
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
-        self.modules.encoder.net.set_normalization(self.demo_buffer.observation_stats(self.modules.encoder.net.vector_keys))
         if model_free:
             self.loss, self.planner = DACLoss(self.modules, cfg.loss), None
             self.updater = ModelFreeUpdater(self.loss)
