@@ -70,6 +70,12 @@ class DemoBuffer:
             self._window_starts[length] = torch.cat(per_episode)
         return self._window_starts[length]
 
+    def num_windows(self, length: int) -> int:
+        """Number of distinct windows of ``length`` transitions; ValueError when no episode has ``length`` steps."""
+        if length < 1:
+            raise ValueError(f"length must be >= 1, got {length}.")
+        return len(self._starts(length))
+
     def _draw(self, starts: torch.Tensor, batch_size: int) -> torch.Tensor:
         choice = torch.randint(len(starts), (batch_size,), generator=self.generator, device=self.generator.device)
         return starts[choice.cpu()].to(self.device)
