@@ -65,7 +65,7 @@ def run_style(style: str, agent_demos, args) -> dict:
                                                    coder_dim=256))
     generator = torch.Generator().manual_seed(0)
     train_buf, agent_buf = DemoBuffer(train, generator=generator), DemoBuffer(agent_demos, generator=generator)
-    modules.encoder.net.set_normalization(train_buf.observation_stats(modules.encoder.net.vector_keys))
+    modules.normalize_from_demos(train)
     loss = AdversarialRewardLoss(modules.encoder, modules.reward, gp_coef=0.1)
     opt = torch.optim.Adam(modules.reward.parameters(), lr=3e-4)
     encode = modules.encoder.encode

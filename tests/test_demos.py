@@ -254,3 +254,12 @@ def test_recordings_end_steps_after_the_first_success():
                                    full.episode(i)["observation"][: cut.episode_lengths[i] + 1])
     with pytest.raises(ValueError, match="steps_after_success"):
         record_demos(env, PointMassExpert(), episodes=1, progress=False, steps_after_success=-1)
+
+
+def test_demo_api_is_reexported_at_the_top_level():
+    import torchrl_mpail2
+    import torchrl_mpail2.data as data
+
+    for name in ("record_demos", "load_demos", "save_demos", "demos_from_arrays", "DemoBuffer", "Demonstrations"):
+        assert getattr(torchrl_mpail2, name) is getattr(data, name), name  # one home: torchrl_mpail2.data
+        assert name in torchrl_mpail2.__all__

@@ -184,3 +184,35 @@ def test_reward_loads_a_state_dict_from_before_the_running_scale():
     assert other.reward.module.reward_scale.item() == 1.0 and other.reward.module.scale_updates.item() == 0
     z = torch.randn(4, 16)
     assert torch.equal(other.reward.module(z, z), m.reward.module(z, z))
+
+
+def test_modules_built_from_demos_take_their_observation_normalisation():
+    from torchrl_mpail2.data import demos_from_arrays
+    from torchrl_mpail2.modules import make_mpail2_modules
+
+    spec = Composite(observation=Unbounded((2,)), camera=Unbounded((3, 64, 64), dtype=torch.uint8))
+    episode = {"observation": torch.tensor([[0.0, 5.0], [2.0, 5.0], [4.0, 5.0]]),
+               "camera": torch.zeros(3, 3, 64, 64, dtype=torch.uint8)}
+    demos = demos_from_arrays([episode])
+    cfg = ModelConfig(**TINY)
+    modules = make_mpail2_modules(spec, Bounded(-1, 1, (A,)), cfg, demos=demos)
+    net = modules.encoder.net
+    assert net.keys == ["observation", "camera"]  # the demos' keys by default
+    assert torch.allclose(net.obs_mean_observation, torch.tensor([2.0, 5.0]))
+    assert torch.allclose(net.obs_std_observation, torch.tensor([(8 / 3) ** 0.5, 1e-3]))  # constant dim floored
+    plain = make_mpail2_modules(spec, Bounded(-1, 1, (A,)), cfg)
+    assert torch.equal(plain.encoder.net.obs_mean_observation, torch.zeros(2))  # no demos: identity
+    assert torch.equal(plain.encoder.net.obs_std_observation, torch.ones(2))
+    assert plain.normalize_from_demos(demos) is plain
+    assert torch.equal(plain.encoder.net.obs_std_observation, net.obs_std_observation)
+
+
+def test_normalisation_from_demos_names_a_missing_key_or_a_wrong_shape():
+    from torchrl_mpail2.data import demos_from_arrays
+
+    modules = MPAIL2Modules({"observation": [3], "proprio": [2]}, A, ModelConfig(**TINY))
+    with pytest.raises(KeyError, match=r"\['proprio'\] are not in the demonstrations"):
+        modules.normalize_from_demos(demos_from_arrays([torch.zeros(4, 3)]))
+    wrong = demos_from_arrays([{"observation": torch.zeros(4, 4), "proprio": torch.zeros(4, 2)}])
+    with pytest.raises(ValueError, match=r"'observation' has shape \[4\] in the demonstrations .* \[3\] in the encoder"):
+        modules.normalize_from_demos(wrong)

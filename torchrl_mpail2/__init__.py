@@ -4,6 +4,15 @@ Inverse reinforcement learning from observation-only demonstrations with a laten
 an adversarial transition reward, a Q-ensemble, a multi-step policy and a latent MPPI planner.
 """
 from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
+from torchrl_mpail2.data import (
+    AttachExpertWindows,
+    DemoBuffer,
+    Demonstrations,
+    demos_from_arrays,
+    load_demos,
+    record_demos,
+    save_demos,
+)
 from torchrl_mpail2.modules import (
     LatentDynamics,
     MPAIL2Modules,
@@ -38,4 +47,5 @@ __all__ = [
     "LatentDynamics", "MPAIL2Modules", "MultiStepPolicy", "ObservationEncoder", "QEnsemble", "TransitionReward",
     "make_mpail2_modules", "AdversarialRewardLoss", "JEPDynamicsLoss", "LambdaReturnValueLoss", "MPAIL2Loss",
     "MultiStepActorLoss", "LatentMPPIPlanner", "LatentWorldModelEnv", "MPAIL2Updater",
+    "AttachExpertWindows", "DemoBuffer", "Demonstrations", "demos_from_arrays", "load_demos", "record_demos", "save_demos",
 ]

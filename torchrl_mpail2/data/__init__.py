@@ -1,5 +1,6 @@
-"""Demonstrations (observation-only) and their sampler."""
+"""Demonstrations (observation-only), their sampler and the replay-buffer transform that attaches them."""
 from torchrl_mpail2.data.demo_buffer import DemoBuffer
+from torchrl_mpail2.data.expert_windows import TRAJ_KEY, AttachExpertWindows
 from torchrl_mpail2.data.demos import (
     DemoFormatError,
     Demonstrations,
@@ -12,6 +13,8 @@ from torchrl_mpail2.data.demos import (
 )
 
 __all__ = [
+    "TRAJ_KEY",
+    "AttachExpertWindows",
     "DemoBuffer",
     "DemoFormatError",
     "Demonstrations",

@@ -6,12 +6,9 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDict
 
-from torchrl_mpail2.data.demos import Demonstrations
+from torchrl_mpail2.data.demos import MIN_STD, Demonstrations
 
 __all__ = ["DemoBuffer"]
-
-#: Floor on per-dimension standard deviations, so constant dimensions do not blow up normalisation.
-MIN_STD = 1e-3
 
 
 class DemoBuffer:
@@ -22,7 +19,7 @@ class DemoBuffer:
     ``td["next", key][:, t] == td[key][:, t + 1]`` inside a window.
 
     Args:
-        demos (Demonstrations): the demonstrations (copied to ``device``).
+        demos (Demonstrations): the demonstrations (their observations are copied to ``device``; kept as ``demos``).
         device (torch.device or str): where samples live. Defaults to ``"cpu"``.
         generator (torch.Generator, optional): source of the sampled indices. If ``None``, a CPU
             generator seeded from the global torch RNG (so :func:`torch.manual_seed` controls it).
@@ -46,6 +43,7 @@ class DemoBuffer:
         generator: torch.Generator | None = None,
     ) -> None:
         self.device = torch.device(device)
+        self.demos = demos
         self.keys = list(demos.observation_keys)
         self.observations = demos.observations.select(*self.keys).to(self.device)
         if generator is None:
@@ -72,6 +70,12 @@ class DemoBuffer:
             self._window_starts[length] = torch.cat(per_episode)
         return self._window_starts[length]
 
+    def num_windows(self, length: int) -> int:
+        """Number of distinct windows of ``length`` transitions; ValueError when no episode has ``length`` steps."""
+        if length < 1:
+            raise ValueError(f"length must be >= 1, got {length}.")
+        return len(self._starts(length))
+
     def _draw(self, starts: torch.Tensor, batch_size: int) -> torch.Tensor:
         choice = torch.randint(len(starts), (batch_size,), generator=self.generator, device=self.generator.device)
         return starts[choice.cpu()].to(self.device)
@@ -97,22 +101,9 @@ class DemoBuffer:
         return self._gather(starts.unsqueeze(-1) + offsets)
 
     def observation_stats(self, keys: Sequence | None = None) -> dict:
-        """Per-dimension ``(mean, std)`` over all stored observations of floating-point keys.
+        """:meth:`Demonstrations.observation_stats` of the buffer's demonstrations, on the buffer's device.
 
-        Args:
-            keys (sequence of keys, optional): keys to summarise; defaults to every floating-point
-                key (pixel keys, stored as integers, are left out).
-
-        Returns:
-            dict mapping each key to ``(mean, std)`` tensors of the key's feature shape; ``std`` is
-            floored at ``MIN_STD``.
+        Floors ``std`` at ``MIN_STD``.
         """
-        if keys is None:
-            keys = [key for key in self.keys if self.observations.get(key).is_floating_point()]
-        stats = {}
-        for key in keys:
-            values = self.observations.get(key)
-            if not values.is_floating_point():
-                raise ValueError(f"Key {key!r} has dtype {values.dtype}; statistics need floating-point data.")
-            stats[key] = (values.mean(0), values.std(0, unbiased=False).clamp_min(MIN_STD))
-        return stats
+        return {key: (mean.to(self.device), std.to(self.device))
+                for key, (mean, std) in self.demos.observation_stats(keys).items()}

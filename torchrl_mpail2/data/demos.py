@@ -63,6 +63,8 @@ NOT_STORED_NOTE = (
 )
 #: Episodes listed by name in an error about non-finite observations.
 _EPISODES_SHOWN = 10
+#: Floor on per-dimension standard deviations, so constant dimensions do not blow up normalisation.
+MIN_STD = 1e-3
 
 
 class DemoFormatError(Exception):
@@ -165,6 +167,42 @@ class Demonstrations:
         episodes = self.header["episodes"]
         returns = [meta["task_return"] for meta in episodes if meta.get("task_return") is not None]
         return sum(returns) / len(returns) if returns else math.nan
+
+    def observation_stats(self, keys: Sequence | None = None) -> dict:
+        """Per-dimension ``(mean, std)`` over all stored observations of floating-point keys.
+
+        What the encoder's fixed observation normalisation is set from
+        (:meth:`~torchrl_mpail2.modules.MPAIL2Modules.normalize_from_demos`).
+
+        Args:
+            keys (sequence of keys, optional): keys to summarise; defaults to every floating-point
+                observation key (pixel keys, stored as integers, are left out).
+
+        Returns:
+            dict mapping each key to ``(mean, std)`` tensors of the key's feature shape; ``std`` is
+            floored at ``MIN_STD``.
+
+        Raises:
+            KeyError: a key is not an observation key of the demonstrations (the message lists them).
+            ValueError: a key does not hold floating-point data (the message names it and its dtype).
+
+        Examples:
+            >>> demos = demos_from_arrays([torch.tensor([[0.0, 5.0], [2.0, 5.0], [4.0, 5.0]])])
+            >>> mean, std = demos.observation_stats()["observation"]
+            >>> mean.tolist(), round(std[1].item(), 6)  # the constant dimension's std is floored
+            ([2.0, 5.0], 0.001)
+        """
+        if keys is None:
+            keys = [key for key in self.observation_keys if self.observations.get(key).is_floating_point()]
+        stats = {}
+        for key in keys:
+            if key not in self.observation_keys:
+                raise KeyError(f"{key!r} is not an observation key of the demonstrations; keys: {self.observation_keys}")
+            values = self.observations.get(key)
+            if not values.is_floating_point():
+                raise ValueError(f"Key {key!r} has dtype {values.dtype}; statistics need floating-point data.")
+            stats[key] = (values.mean(0), values.std(0, unbiased=False).clamp_min(MIN_STD))
+        return stats
 
     def summary(self) -> str:
         """A human-readable description of the header."""

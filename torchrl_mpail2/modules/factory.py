@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
@@ -14,6 +15,8 @@ from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 
+if TYPE_CHECKING:  # the modules only read the demonstrations; they do not depend on the data package
+    from torchrl_mpail2.data import Demonstrations
 
 
 def observation_shapes_from_spec(observation_spec, keys: Sequence[str] | None = None) -> dict[str, tuple[int, ...]]:
@@ -61,6 +64,36 @@ class MPAIL2Modules(nn.Module):
         self.value = QEnsemble(cfg.latent_dim, action_dim, cfg.hidden_dims, cfg.num_q)
         self.policy = MultiStepPolicy(cfg.latent_dim, action_dim, cfg.horizon, cfg.hidden_dims, cfg.log_std_min, cfg.log_std_max)
 
+    def normalize_from_demos(self, demos: Demonstrations) -> MPAIL2Modules:
+        """Sets the encoder's fixed observation normalisation from demonstration statistics.
+
+        Each vector key is normalised by the per-dimension mean and std of the demonstrations'
+        observations (:meth:`~torchrl_mpail2.data.Demonstrations.observation_stats`); image keys are
+        left as they are. This is what :func:`make_mpail2_modules` does when given ``demos``.
+
+        Args:
+            demos (Demonstrations): holding every observation key of the encoder, with the same shapes.
+
+        Returns:
+            MPAIL2Modules: ``self``.
+
+        Raises:
+            KeyError: an encoder key is missing from the demonstrations (the message lists both key sets).
+            ValueError: a key has another shape in the demonstrations (the message names the key and both shapes).
+        """
+        shapes = self.encoder.observation_shapes
+        missing = [key for key in shapes if key not in demos.observation_keys]
+        if missing:
+            raise KeyError(f"encoder observation keys {missing} are not in the demonstrations "
+                           f"({demos.env_id}, keys {demos.observation_keys})")
+        for key, shape in shapes.items():
+            stored = tuple(demos.observations.get(key).shape[1:])
+            if stored != shape:
+                raise ValueError(f"observation {key!r} has shape {list(stored)} in the demonstrations "
+                                 f"({demos.env_id}) but {list(shape)} in the encoder")
+        self.encoder.net.set_normalization(demos.observation_stats(self.encoder.net.vector_keys))
+        return self
+
     @property
     def horizon(self) -> int:
         return self.cfg.horizon
@@ -71,17 +104,41 @@ class MPAIL2Modules(nn.Module):
 
 
 def make_mpail2_modules(observation_spec, action_spec, cfg: ModelConfig | None = None,
-                        observation_keys: Sequence[str] | None = None) -> MPAIL2Modules:
+                        observation_keys: Sequence[str] | None = None, *,
+                        demos: Demonstrations | None = None) -> MPAIL2Modules:
     """Builds :class:`MPAIL2Modules` from an environment's specs.
 
     Args:
         observation_spec (Composite): ``env.observation_spec``.
         action_spec (TensorSpec): ``env.action_spec``; a flat ``[A]`` action bounded to ``[-1, 1]``.
         cfg (ModelConfig, optional): network sizes (paper defaults).
-        observation_keys (Sequence[str], optional): observation keys to encode (default: all observations).
+        observation_keys (Sequence[str], optional): observation keys to encode (default: the keys of
+            ``demos`` if given, else all observations).
+
+    Keyword Args:
+        demos (Demonstrations, optional): the expert demonstrations. When given, the encoder's observation
+            normalisation is set from their statistics (:meth:`MPAIL2Modules.normalize_from_demos`), as the
+            trainer does; without them it stays the identity (mean 0, std 1).
+
+    Examples:
+        >>> from torchrl_mpail2.data import record_demos
+        >>> from torchrl_mpail2.envs import make_env
+        >>> from torchrl_mpail2.experts import PointMassExpert
+        >>> env = make_env("point_mass")
+        >>> demos = record_demos(env, PointMassExpert(), episodes=2, progress=False)
+        >>> cfg = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16)
+        >>> modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg, demos=demos)
+        >>> mean, std = demos.observation_stats()["observation"]
+        >>> torch.equal(modules.encoder.net.obs_mean_observation, mean)
+        True
     """
+    if observation_keys is None and demos is not None:
+        observation_keys = demos.observation_keys
     shapes = observation_shapes_from_spec(observation_spec, observation_keys)
-    return MPAIL2Modules(shapes, check_action_spec(action_spec), cfg)
+    modules = MPAIL2Modules(shapes, check_action_spec(action_spec), cfg)
+    if demos is not None:
+        modules.normalize_from_demos(demos)
+    return modules
 
 
 def check_action_spec(action_spec, action_dim: int | None = None) -> int:

@@ -20,7 +20,7 @@ from torchrl.data.replay_buffers import SliceSampler
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
-from torchrl_mpail2.data import DemoBuffer, Demonstrations, load_demos, record_demos
+from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demos, record_demos
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.modules.factory import make_mpail2_modules
 from torchrl_mpail2.objectives.model_free import DACLoss
@@ -38,7 +38,6 @@ from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
 from torchrl_mpail2.trainers.update import MPAIL2Updater
 
 log = logging.getLogger(__name__)
-TRAJ_KEY = ("collector", "traj_ids")
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
 DEFAULT_EPISODE_BOUND = 1000
 #: What ``--transfer`` copies from another run: everything, or only the world model.
@@ -109,10 +108,8 @@ class MPAIL2Trainer:
         model_free = t.ablation in MODEL_FREE_ABLATIONS
         # the model-free ablations act with a single-step policy, as in the paper's baselines
         model_cfg = dataclasses.replace(cfg.model, horizon=1) if model_free else cfg.model
-        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg,
-                                           observation_keys=self.demos.observation_keys)
+        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg, demos=self.demos)
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
-        self.modules.encoder.net.set_normalization(self.demo_buffer.observation_stats(self.modules.encoder.net.vector_keys))
         if model_free:
             self.loss, self.planner = DACLoss(self.modules, cfg.loss), None
             self.updater = ModelFreeUpdater(self.loss)
@@ -168,15 +165,14 @@ class MPAIL2Trainer:
             shutil.rmtree(scratch, ignore_errors=True)
         storage = LazyMemmapStorage(capacity, scratch_dir=scratch)
         sampler = SliceSampler(slice_len=horizon, traj_key=TRAJ_KEY, strict_length=True)
-        return TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=t.batch_size * horizon)
+        replay = TensorDictReplayBuffer(storage=storage, sampler=sampler, batch_size=t.batch_size * horizon)
+        replay.append_transform(AttachExpertWindows(self.demo_buffer, horizon))
+        return replay
 
     # ---- one batch -------------------------------------------------------------------------------
     def sample_batch(self, replay: TensorDictReplayBuffer) -> TensorDict:
-        """``[B, H]`` sub-trajectories from ``replay`` with expert windows under ``"expert"``."""
-        horizon, batch = self.cfg.model.horizon, self.cfg.train.batch_size
-        td = replay.sample().reshape(batch, horizon)
-        td.set("expert", self.demo_buffer.sample_windows(batch, horizon))
-        return td
+        """``[B, H]`` sub-trajectories from ``replay`` with expert windows under ``"expert"`` (its transform's)."""
+        return replay.sample().reshape(self.cfg.train.batch_size, self.cfg.model.horizon)
 
     def update(self, num_updates: int) -> dict:
         """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""
