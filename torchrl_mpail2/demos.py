@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from torchrl_mpail2.data.demos import load_demos, record_demos
+from torchrl_mpail2.data import load_demos, record_demos
 from torchrl_mpail2.envs.factory import ENV_NAMES, make_env
 
 

@@ -1,16 +1,9 @@
 """Demonstrations (observation-only), their sampler and the replay-buffer transform that attaches them."""
 from torchrl_mpail2.data.demo_buffer import DemoBuffer
 from torchrl_mpail2.data.expert_windows import TRAJ_KEY, AttachExpertWindows
-from torchrl_mpail2.data.demos import (
-    DemoFormatError,
-    Demonstrations,
-    check_observation_spec,
-    demos_from_arrays,
-    load_demos,
-    observation_keys_of,
-    record_demos,
-    save_demos,
-)
+from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos, save_demos
+from torchrl_mpail2.data.demos import DemoFormatError, Demonstrations, demos_from_arrays, observation_keys_of
+from torchrl_mpail2.data.recording import record_demos
 
 __all__ = [
     "TRAJ_KEY",

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDict
 
-from torchrl_mpail2.data.demos import MIN_STD, Demonstrations
+from torchrl_mpail2.data.demos import Demonstrations
 
 __all__ = ["DemoBuffer"]
 

@@ -1,4 +1,5 @@
-r"""Observation-only demonstrations: recording, the on-disk format, and its I/O.
+r"""Observation-only demonstrations: the in-memory container, the on-disk format and its I/O (recording lives in
+:mod:`torchrl_mpail2.data.recording`).
 
 MPAIL2 imitates from observations alone, so a demonstration is a sequence of observations
 :math:`o_0, \dots, o_T` per episode. Actions and rewards are deliberately **not stored**: a learner
@@ -20,34 +21,21 @@ Episodes are stored one after the other, each with its final next-observation, s
 """
 from __future__ import annotations
 
-import json
 import math
-import os
-import shutil
-import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict import TensorDict
-from torchrl.data import Composite
-from torchrl.envs import EnvBase
-from tqdm.auto import tqdm
 
-from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
 from torchrl_mpail2.envs.keys import observation_keys_of
 
 __all__ = [
     "DemoFormatError",
-    "check_observation_spec",
     "Demonstrations",
     "demos_from_arrays",
-    "load_demos",
     "observation_keys_of",
-    "record_demos",
-    "save_demos",
 ]
 
 FORMAT_NAME = "torchrl_mpail2.demos"
@@ -351,241 +339,3 @@ def demos_from_arrays(
         for i in range(len(tensors))
     ]
     return _assemble(tensors, metadata, env_id=env_id)
-
-
-def record_demos(
-    env: EnvBase,
-    expert,
-    episodes: int,
-    out: str | Path | None = None,
-    seed: int = 0,
-    progress: bool = True,
-    *,
-    env_id: str | None = None,
-    env_kwargs: dict | None = None,
-    max_steps: int = 10_000,
-    overwrite: bool = False,
-    steps_after_success: int | None = None,
-) -> Demonstrations:
-    """Rolls an expert out and keeps only the observations.
-
-    Episode ``i`` is reset with seed ``seed + i`` (env seed and, inside a forked RNG scope, the
-    global torch seed, so stochastic experts are reproducible too): the same ``seed`` gives
-    identical data. Kept keys: those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (the
-    observation spec minus success, reward and bookkeeping keys). Actions and rewards are dropped; per-episode metadata keeps the success at
-    the last step, the task return (reporting only), the length and the seed.
-
-    Args:
-        env (EnvBase): an env with an empty batch size (one episode at a time).
-        expert: callable ``tensordict -> tensordict`` writing ``"action"``; its ``reset()``, if it
-            has one, is called before each episode.
-        episodes (int): number of episodes.
-        out (str or Path, optional): if given, the demos are also saved there (:func:`save_demos`).
-        seed (int): seed of the first episode. Defaults to 0.
-        progress (bool): show a tqdm progress bar. Defaults to ``True``.
-
-    Keyword Args:
-        env_id (str, optional): name stored in the header; defaults to the base env's class name.
-        env_kwargs (dict, optional): how the env was built (e.g. ``{"obs": "state"}``), stored in the header.
-        max_steps (int): safety cap on episode length if the env never ends an episode.
-        overwrite (bool): replace an existing ``out`` directory.
-        steps_after_success (int, optional): end each recording this many steps after its first success (as a
-            teleoperator stops recording), instead of at the env's horizon. ``None`` keeps whole episodes.
-
-    Examples:
-        >>> from torchrl_mpail2.envs import make_env
-        >>> from torchrl_mpail2.experts import PointMassExpert
-        >>> demos = record_demos(make_env("point_mass"), PointMassExpert(), episodes=2, progress=False)
-        >>> demos.episode_lengths, demos.success_rate, "action" in demos.observations.keys()
-        ([50, 50], 1.0, False)
-    """
-    if env.batch_size != torch.Size([]):
-        raise ValueError(f"record_demos needs an env with an empty batch size, got {tuple(env.batch_size)}")
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}.")
-    if steps_after_success is not None and steps_after_success < 0:
-        raise ValueError(f"steps_after_success must be >= 0 or None, got {steps_after_success}.")
-    keys = observation_keys_of(env)
-    if env_id is None:
-        env_id = type(getattr(env, "base_env", env)).__name__
-    has_success = "success" in env.observation_spec.keys()
-    reward_key = "task_reward" if "task_reward" in env.reward_keys else env.reward_key
-
-    recorded, metadata = [], []
-    bar = tqdm(range(episodes), desc=f"recording {env_id}", disable=not progress)
-    for i in bar:
-        episode_seed = seed + i
-        with torch.random.fork_rng(devices=[]), torch.no_grad():
-            torch.manual_seed(episode_seed)
-            env.set_seed(episode_seed)
-            if callable(getattr(expert, "reset", None)):
-                expert.reset()
-            rollout = env.rollout(max_steps, policy=expert, break_when_any_done=True)
-        if steps_after_success is not None and has_success:
-            success = rollout["next", "success"].reshape(-1)
-            if success.any():
-                rollout = rollout[: int(success.float().argmax()) + 1 + steps_after_success]
-        recorded.append({key: torch.cat([rollout[key], rollout["next", key][-1:]]) for key in keys})
-        metadata.append(
-            {
-                "success": bool(rollout["next", "success"][-1].item()) if has_success else None,
-                "task_return": float(rollout["next", reward_key].sum().item()),
-                "seed": episode_seed,
-            }
-        )
-        successes = [meta["success"] for meta in metadata if meta["success"] is not None]
-        if successes:
-            bar.set_postfix(success=f"{sum(successes) / len(successes):.2f}")
-    demos = _assemble(recorded, metadata, env_id=env_id, env_kwargs=env_kwargs)
-    if out is not None:
-        save_demos(demos, out, overwrite=overwrite)
-    return demos
-
-
-def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False) -> Path:
-    """Writes demonstrations to a directory (format in the module docstring).
-
-    Written to a temporary sibling first and moved into place, so an interrupted save never
-    leaves a half-written demo directory under ``path``.
-
-    Args:
-        demos (Demonstrations): what to write.
-        path (str or Path): target directory; must not exist unless ``overwrite``.
-        overwrite (bool): replace an existing directory. Defaults to ``False``.
-
-    Returns:
-        Path: ``path``.
-    """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it.")
-    _check_finite(demos.observations, ValueError, f"Not saving demonstrations to {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    staging = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
-    try:
-        staging.mkdir()
-        arrays_dir = staging / OBSERVATIONS_DIR
-        demos.observations.memmap(arrays_dir)
-        files = folder_manifest(staging, OBSERVATIONS_DIR)
-        header = {key: value for key, value in demos.header.items() if key != "files"}
-        header["files"] = files
-        (staging / HEADER_FILE).write_text(json.dumps(header, indent=1))
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(staging, path)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return path
-
-
-def _read_header(path: Path) -> dict:
-    header_path = path / HEADER_FILE
-    if not header_path.is_file():
-        raise DemoFormatError(f"{path} is not a demo directory: {HEADER_FILE} is missing.")
-    try:
-        header = json.loads(header_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise DemoFormatError(f"{header_path} is truncated or corrupted: {error}") from error
-    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
-        raise DemoFormatError(f"{header_path} is corrupted or not a {FORMAT_NAME} header.")
-    if header.get("format_version") != FORMAT_VERSION:
-        raise DemoFormatError(
-            f"{header_path} has format_version {header.get('format_version')!r}; this code reads {FORMAT_VERSION}."
-        )
-    required = ("env_id", "observation_keys", "num_episodes", "num_steps", "num_observations", "episodes", "files")
-    missing = [name for name in required if name not in header]
-    if missing:
-        raise DemoFormatError(f"{header_path} is truncated or corrupted: missing fields {missing}.")
-    return header
-
-
-def _check_contents(observations: TensorDict, header: dict) -> None:
-    """Cross-checks the loaded arrays against the header (catches edited or mismatched headers)."""
-    expected = {_key_from_json(entry["key"]): entry for entry in header["observation_keys"]}
-    stored = set(observations.keys(True, True)) - set(INDEX_KEYS)
-    if stored != set(expected) or not all(key in observations.keys() for key in INDEX_KEYS):
-        raise DemoFormatError(f"Stored keys {sorted(map(str, stored))} disagree with the header; data is corrupted.")
-    count = header["num_observations"]
-    if observations.batch_size != torch.Size([count]):
-        raise DemoFormatError(f"{observations.batch_size[0]} observations stored, {count} in the header; data is corrupted.")
-    for key, entry in expected.items():
-        tensor = observations.get(key)
-        if list(tensor.shape[1:]) != list(entry["shape"]) or tensor.dtype != _dtype_from_name(entry["dtype"]):
-            raise DemoFormatError(f"Key {key!r} stored as {tuple(tensor.shape[1:])} {tensor.dtype}, header says {entry}.")
-    lengths = [int(meta["length"]) for meta in header["episodes"]]
-    counts = torch.tensor(lengths, dtype=torch.long) + 1
-    if len(lengths) != header["num_episodes"] or sum(lengths) != header["num_steps"] or int(counts.sum()) != count:
-        raise DemoFormatError("Episode metadata disagrees with the episode/step counts; header is corrupted.")
-    episode_index = torch.repeat_interleave(torch.arange(len(lengths)), counts)
-    step_index = torch.cat([torch.arange(int(c)) for c in counts])
-    if not (torch.equal(observations[EPISODE_KEY], episode_index) and torch.equal(observations[STEP_KEY], step_index)):
-        raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
-
-
-def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase) -> None:
-    """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
-
-    The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
-    rather than its spec so that its own bookkeeping transforms are recognised); batch dimensions of the
-    spec are stripped before shapes are compared.
-    """
-    spec_keys = observation_keys_of(observation_spec)
-    if isinstance(observation_spec, EnvBase):
-        observation_spec = observation_spec.observation_spec
-    demo_keys = demos.observation_keys
-    missing = [key for key in spec_keys if key not in demo_keys]
-    extra = [key for key in demo_keys if key not in spec_keys]
-    if missing or extra:
-        raise ValueError(
-            f"Demonstrations ({demos.env_id}) do not match the observation spec: "
-            f"keys missing from the demos {missing}, extra keys in the demos {extra}."
-        )
-    batch_dims = len(observation_spec.shape)
-    for key in spec_keys:
-        expected = tuple(observation_spec[key].shape[batch_dims:])
-        stored = tuple(demos.observations.get(key).shape[1:])
-        if expected != stored:
-            raise ValueError(
-                f"Observation key {key!r} has shape {stored} in the demonstrations but {expected} in the observation spec."
-            )
-        if observation_spec[key].dtype != demos.observations.get(key).dtype:
-            raise ValueError(
-                f"Observation key {key!r} has dtype {demos.observations.get(key).dtype} in the demonstrations "
-                f"but {observation_spec[key].dtype} in the observation spec."
-            )
-
-
-def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True) -> Demonstrations:
-    """Loads and validates demonstrations written by :func:`save_demos`.
-
-    Every stored file is checked against the byte size and sha256 recorded in the header before
-    anything is read, so truncated or corrupted data raises instead of loading silently (a
-    truncated memmap would otherwise read as zeros). The data is copied into memory.
-
-    Args:
-        path (str or Path): demo directory.
-        observation_spec (Composite or EnvBase, optional): an env (or its observation spec) to check keys and
-            shapes against (:func:`check_observation_spec`).
-        verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
-
-    Raises:
-        DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files, NaN or Inf
-            in an observation (the message names the key and the episodes).
-        ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes).
-    """
-    path = Path(path)
-    header = _read_header(path)
-    try:
-        verify_manifest(path, header["files"], DemoFormatError, check_digests=verify)
-        observations = TensorDict.load_memmap(path / OBSERVATIONS_DIR).to_tensordict()
-        _check_contents(observations, header)
-        _check_finite(observations, DemoFormatError, str(path))
-    except DemoFormatError:
-        raise
-    except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:
-        raise DemoFormatError(f"{path} is truncated or corrupted: {type(error).__name__}: {error}") from error
-    demos = Demonstrations(observations=observations, header=header)
-    if observation_spec is not None:
-        check_observation_spec(demos, observation_spec)
-    return demos

@@ -1,0 +1,172 @@
+"""Saving and loading demonstrations in the on-disk format (described in :mod:`torchrl_mpail2.data.demos`), with
+checksums, content checks and an optional check against an environment's observation spec."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from torchrl.data import Composite
+from torchrl.envs import EnvBase
+
+from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
+from torchrl_mpail2.data.demos import (
+    EPISODE_KEY, FORMAT_NAME, FORMAT_VERSION, HEADER_FILE, INDEX_KEYS, OBSERVATIONS_DIR, STEP_KEY, DemoFormatError,
+    Demonstrations, _check_finite, _dtype_from_name, _key_from_json,
+)
+from torchrl_mpail2.envs.keys import observation_keys_of
+
+__all__ = ["check_observation_spec", "load_demos", "save_demos"]
+
+
+def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False) -> Path:
+    """Writes demonstrations to a directory (format in the module docstring).
+
+    Written to a temporary sibling first and moved into place, so an interrupted save never
+    leaves a half-written demo directory under ``path``.
+
+    Args:
+        demos (Demonstrations): what to write.
+        path (str or Path): target directory; must not exist unless ``overwrite``.
+        overwrite (bool): replace an existing directory. Defaults to ``False``.
+
+    Returns:
+        Path: ``path``.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it.")
+    _check_finite(demos.observations, ValueError, f"Not saving demonstrations to {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    try:
+        staging.mkdir()
+        arrays_dir = staging / OBSERVATIONS_DIR
+        demos.observations.memmap(arrays_dir)
+        files = folder_manifest(staging, OBSERVATIONS_DIR)
+        header = {key: value for key, value in demos.header.items() if key != "files"}
+        header["files"] = files
+        (staging / HEADER_FILE).write_text(json.dumps(header, indent=1))
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(staging, path)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return path
+
+
+def _read_header(path: Path) -> dict:
+    header_path = path / HEADER_FILE
+    if not header_path.is_file():
+        raise DemoFormatError(f"{path} is not a demo directory: {HEADER_FILE} is missing.")
+    try:
+        header = json.loads(header_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise DemoFormatError(f"{header_path} is truncated or corrupted: {error}") from error
+    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+        raise DemoFormatError(f"{header_path} is corrupted or not a {FORMAT_NAME} header.")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise DemoFormatError(
+            f"{header_path} has format_version {header.get('format_version')!r}; this code reads {FORMAT_VERSION}."
+        )
+    required = ("env_id", "observation_keys", "num_episodes", "num_steps", "num_observations", "episodes", "files")
+    missing = [name for name in required if name not in header]
+    if missing:
+        raise DemoFormatError(f"{header_path} is truncated or corrupted: missing fields {missing}.")
+    return header
+
+
+def _check_contents(observations: TensorDict, header: dict) -> None:
+    """Cross-checks the loaded arrays against the header (catches edited or mismatched headers)."""
+    expected = {_key_from_json(entry["key"]): entry for entry in header["observation_keys"]}
+    stored = set(observations.keys(True, True)) - set(INDEX_KEYS)
+    if stored != set(expected) or not all(key in observations.keys() for key in INDEX_KEYS):
+        raise DemoFormatError(f"Stored keys {sorted(map(str, stored))} disagree with the header; data is corrupted.")
+    count = header["num_observations"]
+    if observations.batch_size != torch.Size([count]):
+        raise DemoFormatError(f"{observations.batch_size[0]} observations stored, {count} in the header; data is corrupted.")
+    for key, entry in expected.items():
+        tensor = observations.get(key)
+        if list(tensor.shape[1:]) != list(entry["shape"]) or tensor.dtype != _dtype_from_name(entry["dtype"]):
+            raise DemoFormatError(f"Key {key!r} stored as {tuple(tensor.shape[1:])} {tensor.dtype}, header says {entry}.")
+    lengths = [int(meta["length"]) for meta in header["episodes"]]
+    counts = torch.tensor(lengths, dtype=torch.long) + 1
+    if len(lengths) != header["num_episodes"] or sum(lengths) != header["num_steps"] or int(counts.sum()) != count:
+        raise DemoFormatError("Episode metadata disagrees with the episode/step counts; header is corrupted.")
+    episode_index = torch.repeat_interleave(torch.arange(len(lengths)), counts)
+    step_index = torch.cat([torch.arange(int(c)) for c in counts])
+    if not (torch.equal(observations[EPISODE_KEY], episode_index) and torch.equal(observations[STEP_KEY], step_index)):
+        raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
+
+
+def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase) -> None:
+    """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
+
+    The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
+    rather than its spec so that its own bookkeeping transforms are recognised); batch dimensions of the
+    spec are stripped before shapes are compared.
+    """
+    spec_keys = observation_keys_of(observation_spec)
+    if isinstance(observation_spec, EnvBase):
+        observation_spec = observation_spec.observation_spec
+    demo_keys = demos.observation_keys
+    missing = [key for key in spec_keys if key not in demo_keys]
+    extra = [key for key in demo_keys if key not in spec_keys]
+    if missing or extra:
+        raise ValueError(
+            f"Demonstrations ({demos.env_id}) do not match the observation spec: "
+            f"keys missing from the demos {missing}, extra keys in the demos {extra}."
+        )
+    batch_dims = len(observation_spec.shape)
+    for key in spec_keys:
+        expected = tuple(observation_spec[key].shape[batch_dims:])
+        stored = tuple(demos.observations.get(key).shape[1:])
+        if expected != stored:
+            raise ValueError(
+                f"Observation key {key!r} has shape {stored} in the demonstrations but {expected} in the observation spec."
+            )
+        if observation_spec[key].dtype != demos.observations.get(key).dtype:
+            raise ValueError(
+                f"Observation key {key!r} has dtype {demos.observations.get(key).dtype} in the demonstrations "
+                f"but {observation_spec[key].dtype} in the observation spec."
+            )
+
+
+def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True) -> Demonstrations:
+    """Loads and validates demonstrations written by :func:`save_demos`.
+
+    Every stored file is checked against the byte size and sha256 recorded in the header before
+    anything is read, so truncated or corrupted data raises instead of loading silently (a
+    truncated memmap would otherwise read as zeros). The data is copied into memory.
+
+    Args:
+        path (str or Path): demo directory.
+        observation_spec (Composite or EnvBase, optional): an env (or its observation spec) to check keys and
+            shapes against (:func:`check_observation_spec`).
+        verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
+
+    Raises:
+        DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files, NaN or Inf
+            in an observation (the message names the key and the episodes).
+        ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes).
+    """
+    path = Path(path)
+    header = _read_header(path)
+    try:
+        verify_manifest(path, header["files"], DemoFormatError, check_digests=verify)
+        observations = TensorDict.load_memmap(path / OBSERVATIONS_DIR).to_tensordict()
+        _check_contents(observations, header)
+        _check_finite(observations, DemoFormatError, str(path))
+    except DemoFormatError:
+        raise
+    except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:
+        raise DemoFormatError(f"{path} is truncated or corrupted: {type(error).__name__}: {error}") from error
+    demos = Demonstrations(observations=observations, header=header)
+    if observation_spec is not None:
+        check_observation_spec(demos, observation_spec)
+    return demos
