@@ -17,7 +17,6 @@ from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import SliceSampler
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demos, record_demos
@@ -32,6 +31,7 @@ from torchrl_mpail2.trainers.config import (
     LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig, apply_resume_overrides,
     resolve_paths,
 )
+from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
@@ -42,13 +42,6 @@ log = logging.getLogger(__name__)
 DEFAULT_EPISODE_BOUND = 1000
 #: What ``--transfer`` copies from another run: everything, or only the world model.
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
-
-
-def episode_outcome(episode: TensorDict) -> dict[str, float]:
-    """Success at the last step, success at any step (the paper's definition) and task return of one episode."""
-    success = episode["next", "success"]
-    return {"success": float(success[-1].item()), "success_any_step": float(success.any().item()),
-            "task_return": float(episode["next", "episode_task_return"][-1].item())}
 
 
 def default_demo_dir(cfg: ExperimentConfig) -> Path:
@@ -199,35 +192,16 @@ class MPAIL2Trainer:
     def evaluation_seeds(self, episodes: int | None = None) -> list[int]:
         """Seeds of the fixed evaluation episodes (``eval_seed + i``), the same in every run."""
         t = self.cfg.train
-        return [t.eval_seed + i for i in range(episodes or t.eval_episodes)]
+        return evaluation_seeds(t.eval_seed, episodes or t.eval_episodes)
 
-    @torch.no_grad()
     def evaluate(self, episodes: int | None = None) -> dict:
-        """Deterministic-actor episodes from a fixed set of initial states: success rates and returns.
+        """Deterministic-actor episodes from a fixed set of initial states (see :mod:`.evaluation`).
 
-        Episode ``i`` resets the evaluation env with seed ``eval_seed + i`` and the planner draws its sampling
-        noise from a generator with the same seed (its warm start cleared), so an evaluation depends only on the
-        learner's weights: the same checkpoint scores the same at any time and in any run.
-        ``success_rate_any_step`` (success at any step of the episode, the paper's definition, Appendix
-        "Metrics") is the headline figure; ``success_rate`` counts episodes whose last step is a success.
+        ``success_rate_any_step`` (success at any step of the episode, the paper's definition) is the headline
+        figure; ``success_rate`` counts episodes whose last step is a success.
         """
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.eval_seed)
-        planner = self.planner
-        saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
-        actor = self.actor.actor
-        outcomes, device = [], next(self.modules.parameters()).device
-        try:
-            with set_exploration_type(ExplorationType.DETERMINISTIC):
-                for seed in self.evaluation_seeds(episodes):
-                    env.set_seed(seed)
-                    if planner is not None:
-                        planner.reset()
-                        planner.generator = torch.Generator(device=device).manual_seed(seed)
-                    outcomes.append(episode_outcome(env.rollout(100_000, actor, break_when_any_done=True)))
-        finally:
-            if planner is not None:
-                planner.set_extra_state(saved[0])
-                planner.generator = saved[1]
+        outcomes = evaluate_episodes(env, self.actor.actor, self.evaluation_seeds(episodes), self.planner)
         mean = {key: sum(o[key] for o in outcomes) / len(outcomes) for key in outcomes[0]}
         return {"success_rate_any_step": mean["success_any_step"], "success_rate": mean["success"],
                 "return": mean["task_return"], "normalized_return": self.normalized_return(mean["task_return"]),
