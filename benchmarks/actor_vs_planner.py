@@ -21,7 +21,7 @@ import torch
 
 from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen, imagined_lambda_return
 from torchrl_mpail2.trainers import MPAIL2Trainer
-from torchrl_mpail2.trainers import checkpoint as ckpt
+from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import ExperimentConfig
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
@@ -35,7 +35,7 @@ def _reinit(module: torch.nn.Module) -> None:
 
 
 def _objective(name: str, trainer: MPAIL2Trainer, z: torch.Tensor, heads: torch.Tensor) -> torch.Tensor:
-    m, loss = trainer.modules, trainer.loss
+    m, loss = trainer.agent.modules, trainer.agent.loss
     if name == "actor":
         return loss.actor_loss(None, latents=(z, None))["loss_actor"]
     plan = m.policy.net(z, deterministic=True)[0]
@@ -43,7 +43,7 @@ def _objective(name: str, trainer: MPAIL2Trainer, z: torch.Tensor, heads: torch.
         if name == "deterministic_lambda":
             return -imagined_lambda_return(z, plan, m.dynamics.module, m.reward.module, ensemble_estimate(m.value.net, "mean"),
                                            m.policy.net, loss.cfg.gamma, loss.cfg.lmbda).mean()
-        return -trainer.planner.score(z, plan.unsqueeze(1), heads).mean()
+        return -trainer.agent.planner.score(z, plan.unsqueeze(1), heads).mean()
 
 
 def main() -> None:
@@ -59,9 +59,9 @@ def main() -> None:
     cfg.train.run_dir = tempfile.mkdtemp()
     trainer = MPAIL2Trainer(cfg)
     state = ckpt.read_checkpoint(args.run_dir / "checkpoints" / args.checkpoint)
-    trainer.modules.load_state_dict(state["modules"])
-    trainer.loss.load_state_dict(state["loss"])
-    m, planner = trainer.modules, trainer.planner
+    trainer.agent.modules.load_state_dict(state["modules"])
+    trainer.agent.loss.load_state_dict(state["loss"])
+    m, planner = trainer.agent.modules, trainer.agent.planner
     keys = m.encoder.in_keys
     starts = torch.cat([trainer.env.rollout(cfg.train.eval_episodes * 10).select(*keys) for _ in range(args.rollouts)], 0)
     heads = torch.arange(2)

@@ -3,27 +3,29 @@ checkpoints are selected by evaluating all automatically saved checkpoints").
 
     python benchmarks/evaluate_checkpoints.py RUN_DIR [--episodes 10] [--name lift_state_tpw1]
 
-Rebuilds the run from ``RUN_DIR/config.json`` in a scratch folder (the run folder is only read), loads each
-numbered checkpoint's networks and planner state, and runs ``--episodes`` deterministic-planner episodes on a
-fresh evaluation environment (seed ``train.seed + 10000``, the same for every checkpoint). Writes
-``RUN_DIR/checkpoint_evals.json`` and, with ``--name``, ``docs/results/<name>_checkpoints.json``: success at the
-last step, success at any step (the paper's definition) and the task return per checkpoint.
+Loads each numbered checkpoint's agent on its own (:meth:`MPAIL2Agent.from_checkpoint`: no trainer, no replay;
+the run folder is only read) and plays ``--episodes`` deterministic episodes of the fixed evaluation set
+(``train.eval_seed + i``, the planner's noise seeded per episode: the same episodes as the run's own evaluations).
+Writes ``RUN_DIR/checkpoint_evals.json`` and, with ``--name``, ``docs/results/<name>_checkpoints.json``: success
+at the last step, success at any step (the paper's definition) and the task return per checkpoint.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 from pathlib import Path
 
 import torch
 from tqdm import tqdm
 
-from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides
-from torchrl_mpail2.trainers.config import ExperimentConfig
+from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+#: Evaluation seed of runs whose config predates ``train.eval_seed`` (its default).
+DEFAULT_EVAL_SEED = 2_000_000
 
 
 def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
@@ -32,34 +34,30 @@ def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
                   for path in (run_dir / "checkpoints").glob("episode_*") if path.is_dir())
 
 
-def trainer_for_run(run_dir: Path, scratch: str, threads: int | None = None) -> MPAIL2Trainer:
-    """A trainer rebuilt from ``run_dir/config.json`` whose own files go to ``scratch`` (the run folder is only read)."""
-    cfg = apply_overrides(ExperimentConfig.from_dict(json.loads((run_dir / "config.json").read_text())),
-                          ["train.progress=false", "train.logger=none", f"train.run_dir={scratch}/eval",
-                           *([f"train.threads={threads}"] if threads else [])])
-    return MPAIL2Trainer(cfg)
+def run_env(run_dir: Path):
+    """The run's environment, built from ``run_dir/config.json`` (``train.env``, ``train.obs``, ``train.env_kwargs``)."""
+    train = json.loads((run_dir / "config.json").read_text())["train"]
+    return make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {})), train
 
 
 def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None) -> dict:
     checkpoints = numbered_checkpoints(run_dir)
     if not checkpoints:
         raise SystemExit(f"no numbered checkpoints under {run_dir / 'checkpoints'}")
+    if threads:
+        torch.set_num_threads(threads)
+    env, train = run_env(run_dir)
+    seeds = evaluation_seeds(train.get("eval_seed", DEFAULT_EVAL_SEED), episodes)
     rows = []
-    with tempfile.TemporaryDirectory() as scratch:
-        trainer = trainer_for_run(run_dir, scratch, threads)
-        cfg = trainer.cfg
-        for episode, path in tqdm(checkpoints, desc="checkpoints"):
-            trainer.load(path, with_replay=False)
-            if getattr(trainer, "eval_env", None) is not None:  # a fresh env: the same episodes for every checkpoint
-                trainer.eval_env.close()
-            trainer.eval_env = None
-            torch.manual_seed(cfg.train.seed + 10_000)
-            start = time.perf_counter()
-            rows.append({"episode": episode, "checkpoint": path.name, **trainer.evaluate(episodes),
-                         "seconds": time.perf_counter() - start})
-            tqdm.write(json.dumps(rows[-1]))
+    for episode, path in tqdm(checkpoints, desc="checkpoints"):
+        agent = MPAIL2Agent.from_checkpoint(path, env)
+        start = time.perf_counter()
+        rows.append({"episode": episode, "checkpoint": path.name, **summarize_outcomes(evaluate_episodes(env, agent.policy, seeds, agent.planner)),
+                     "seconds": time.perf_counter() - start})
+        tqdm.write(json.dumps(rows[-1]))
+    env.close()
     best = max(rows, key=lambda r: (r["success_rate_any_step"], r["success_rate"]))
-    return {"run": run_dir.name, "episodes_per_checkpoint": episodes, "checkpoints": rows,
+    return {"run": run_dir.name, "episodes_per_checkpoint": episodes, "first_eval_seed": seeds[0], "checkpoints": rows,
             "best_success_rate": max(r["success_rate"] for r in rows),
             "best_success_rate_any_step": best["success_rate_any_step"], "best_checkpoint": best["checkpoint"]}
 

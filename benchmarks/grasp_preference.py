@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from evaluate_checkpoints import RESULTS, numbered_checkpoints, trainer_for_run
+from evaluate_checkpoints import RESULTS, numbered_checkpoints, run_env
+from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE, chain_rewards, rollout_latents
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
@@ -44,13 +44,13 @@ def grasped_states(run_dir: Path, keys: list[str], count: int, seed: int = 0) ->
 
 
 @torch.no_grad()
-def preference(trainer, states: TensorDict) -> dict:
-    planner, heads = trainer.planner, torch.arange(HEADS_PER_ESTIMATE)
+def preference(agent: MPAIL2Agent, states: TensorDict) -> dict:
+    planner, heads = agent.planner, torch.arange(HEADS_PER_ESTIMATE)
     planner.reset()  # no warm start: each state is planned from a zero mean, whatever ran before
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         plan = planner(states.clone())["plan"]
-    z = trainer.modules.encoder.encode(states)
-    m, horizon = trainer.modules, plan.shape[-2]
+    z = agent.modules.encoder.encode(states)
+    m, horizon = agent.modules, plan.shape[-2]
     discounts = planner.cfg.gamma ** torch.arange(horizon, dtype=z.dtype)
     returns, rewards = {}, {}
     for command in (1.0, -1.0):
@@ -78,19 +78,25 @@ def main() -> None:
     evals_path = args.run_dir / "checkpoint_evals.json"
     evals = {r["checkpoint"]: r for r in json.loads(evals_path.read_text())["checkpoints"]} if evals_path.exists() else {}
     rows = []
-    with tempfile.TemporaryDirectory() as scratch:
-        trainer = trainer_for_run(args.run_dir, scratch, args.threads)
-        if trainer.planner is None:
+    torch.set_num_threads(args.threads)
+    env, _ = run_env(args.run_dir)
+    checkpoints = numbered_checkpoints(args.run_dir)
+    if not checkpoints:
+        raise SystemExit(f"no numbered checkpoints under {args.run_dir / 'checkpoints'}")
+    states = None
+    for episode, path in checkpoints:
+        agent = MPAIL2Agent.from_checkpoint(path, env)
+        if agent.planner is None:
             raise SystemExit("this run has no planner (a model-free ablation)")
-        states = grasped_states(args.run_dir, list(trainer.modules.encoder.in_keys), args.states)
-        for episode, path in numbered_checkpoints(args.run_dir):
-            trainer.load(path, with_replay=False)
-            torch.manual_seed(0)
-            row = {"episode": episode, **preference(trainer, states)}
-            if path.name in evals:
-                row.update({k: evals[path.name][k] for k in ("success_rate", "success_rate_any_step")})
-            rows.append(row)
-            print(json.dumps(row))
+        if states is None:
+            states = grasped_states(args.run_dir, list(agent.modules.encoder.in_keys), args.states)
+        torch.manual_seed(0)
+        row = {"episode": episode, **preference(agent, states)}
+        if path.name in evals:
+            row.update({k: evals[path.name][k] for k in ("success_rate", "success_rate_any_step")})
+        rows.append(row)
+        print(json.dumps(row))
+    env.close()
     result = {"run": args.run_dir.name, "states": int(states.shape[0]), "checkpoints": rows}
     (args.run_dir / "grasp_preference.json").write_text(json.dumps(result, indent=2))
     if args.name:

@@ -1,7 +1,7 @@
 """Milliseconds per MPAIL2 learner update (dynamics -> reward -> value -> policy), with a per-loss breakdown.
 
 Each (configuration, variant) runs in its own fresh process, the variants interleaved round after round,
-because the malloc setting of :func:`~torchrl_mpail2.trainers.update.retain_freed_memory` is process-wide.
+because the malloc setting of :func:`~torchrl_mpail2.agents.update.retain_freed_memory` is process-wide.
 Variants: ``initial`` (the code before the speed work, see ``_reference.py``), ``optimised`` (the package
 as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False``), ``optimised_bf16_stop_gradient``
 (the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes and the value target's

@@ -31,7 +31,7 @@ def test_evaluation_plays_the_same_episodes_whatever_the_global_rng(tmp_path, mo
     assert first["episodes"] == 3 and len(first["success_any_step_per_episode"]) == 3
     assert first["success_rate"] <= first["success_rate_any_step"]
     # the planner's own state is what it was before the evaluation
-    assert trainer.planner.generator is None
+    assert trainer.agent.planner.generator is None
 
 
 def test_evaluation_episodes_do_not_depend_on_the_training_seed(tmp_path, monkeypatch):

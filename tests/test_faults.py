@@ -172,14 +172,14 @@ def test_a_truncated_stored_replay_is_refused_naming_the_file(demo_dir, tmp_path
 
 
 def test_a_zero_byte_state_file_is_refused_naming_the_file(demo_dir, tmp_path):
-    from torchrl_mpail2.trainers.checkpoint import read_checkpoint
+    from torchrl_mpail2.data.checkpoint import read_checkpoint
 
     run = _trained(demo_dir, tmp_path / "run")
     state = run / "checkpoints" / "last" / "state.pt"
     state.write_bytes(b"")
     with pytest.raises(RuntimeError, match=r"last/state.pt is truncated or corrupted: 0 bytes on disk") as err:
         read_checkpoint(run / "checkpoints" / "last")
-    from torchrl_mpail2.trainers.checkpoint import CheckpointError
+    from torchrl_mpail2.data.checkpoint import CheckpointError
 
     assert isinstance(err.value, CheckpointError)
     (run / "checkpoints" / "last" / "manifest.json").unlink()  # a checkpoint written before manifests
@@ -191,7 +191,7 @@ def test_a_crash_between_the_renames_resumes_from_the_complete_old_checkpoint(de
     import os
 
     from torchrl_mpail2.trainers import MPAIL2Trainer
-    from torchrl_mpail2.trainers.checkpoint import read_checkpoint
+    from torchrl_mpail2.data.checkpoint import read_checkpoint
 
     run = _trained(demo_dir, tmp_path / "run")
     checkpoints = run / "checkpoints"
@@ -215,7 +215,7 @@ def test_last_is_written_every_last_every_episodes_before_the_first_evaluation(d
     trainer.train()
     assert ("last", 2, True) in written and ("last", 4, True) in written
     assert [w for w in written if w[0] == "last"].count(("last", 4, True)) == 1  # not twice at the evaluation
-    from torchrl_mpail2.trainers.checkpoint import checkpoint_episodes
+    from torchrl_mpail2.data.checkpoint import checkpoint_episodes
 
     assert checkpoint_episodes(tmp_path / "run" / "checkpoints" / "last") == 4
 
@@ -331,7 +331,7 @@ def test_a_run_that_fails_validation_leaves_no_folder_behind(demo_dir, tmp_path)
 def _updater():
     from torchrl_mpail2.config import LossConfig
     from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
-    from torchrl_mpail2.trainers.update import MPAIL2Updater
+    from torchrl_mpail2.agents.update import MPAIL2Updater
 
     from conftest import tiny_modules
 
@@ -388,7 +388,7 @@ def test_the_learners_nan_actions_stop_training_at_once_naming_the_cause(demo_di
 
     trainer = MPAIL2Trainer(_cfg(demo_dir, "train.total_episodes=3"), run_dir=tmp_path / "run")
     with torch.no_grad():
-        next(trainer.modules.dynamics.parameters()).fill_(float("nan"))
+        next(trainer.agent.modules.dynamics.parameters()).fill_(float("nan"))
     with pytest.raises(FloatingPointError, match=r"episode 2, after \d+ updates: LatentMPPIPlanner returned non-finite") as err:
         trainer.train()
     from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
@@ -421,7 +421,7 @@ def test_torchrls_reward_sum_key_is_not_an_observation_in_modules_demos_or_the_t
     assert record_demos(env, PointMassExpert(), episodes=1, progress=False).observation_keys == ["observation"]
     assert make_mpail2_modules(env.observation_spec, env.action_spec).encoder.in_keys == ["observation"]
     trainer = MPAIL2Trainer(_cfg(demo_dir), env_fn=_with_episode_reward, run_dir=tmp_path / "run")
-    assert trainer.modules.encoder.in_keys == ["observation"]
+    assert trainer.agent.modules.encoder.in_keys == ["observation"]
     trainer.close()
 
 
@@ -454,7 +454,7 @@ def test_a_run_killed_at_random_moments_and_resumed_ends_like_an_uninterrupted_o
     from pathlib import Path
 
     from torchrl_mpail2.trainers import MPAIL2Trainer
-    from torchrl_mpail2.trainers.checkpoint import checkpoint_episodes, find_resumable
+    from torchrl_mpail2.data.checkpoint import checkpoint_episodes, find_resumable
     from torchrl_mpail2.trainers.plots import read_jsonl
 
     settings = ["train.total_episodes=12", "train.eval_every=6", "train.eval_episodes=1", "train.last_every=2",

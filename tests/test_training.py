@@ -14,7 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
-from torchrl_mpail2.trainers.checkpoint import read_checkpoint
+from torchrl_mpail2.data.checkpoint import read_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,12 +77,12 @@ def test_model_free_ablations_run(tmp_path, monkeypatch, ablation):
     monkeypatch.chdir(tmp_path)
     trainer = MPAIL2Trainer(_cfg(f"train.ablation={ablation}", "train.total_episodes=3", "train.warmup_episodes=1",
                                  "train.eval_every=3", "train.eval_episodes=1", "train.utd=0.1"), run_dir=tmp_path / "r")
-    before = {k: v.clone() for k, v in trainer.modules.encoder.state_dict().items()}
+    before = {k: v.clone() for k, v in trainer.agent.modules.encoder.state_dict().items()}
     summary = trainer.train()
-    assert summary["episodes"] == 3 and summary["updates"] > 0 and trainer.planner is None
-    assert trainer.modules.policy.net.horizon == 1
+    assert summary["episodes"] == 3 and summary["updates"] > 0 and trainer.agent.planner is None
+    assert trainer.agent.modules.policy.net.horizon == 1
     # DAC's encoder learns through the value loss
-    assert any(not torch.equal(v, trainer.modules.encoder.state_dict()[k]) for k, v in before.items())
+    assert any(not torch.equal(v, trainer.agent.modules.encoder.state_dict()[k]) for k, v in before.items())
     assert (trainer.latest is not None) == (ablation == "PMO")
 
 
@@ -137,9 +137,9 @@ def test_killed_run_resumes_with_counters_buffer_and_weights(tmp_path):
     trainer = MPAIL2Trainer.resume(run)
     assert trainer.counters == counters
     assert len(trainer.replay) == counters["env_steps"] == 50 * counters["episodes"]
-    for k, v in trainer.modules.state_dict().items():
+    for k, v in trainer.agent.modules.state_dict().items():
         assert torch.equal(v, saved["modules"][k]), k
-    assert trainer.loss.log_alpha.item() == saved["loss"]["actor_loss.log_alpha"].item()
+    assert trainer.agent.loss.log_alpha.item() == saved["loss"]["actor_loss.log_alpha"].item()
     summary = trainer.train()
     assert summary["episodes"] == 10 and summary["env_steps"] == 500 and len(trainer.replay) == 500
     records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
@@ -193,6 +193,6 @@ def test_init_from_transfers_everything_or_only_the_world_model(tmp_path, monkey
         target = MPAIL2Trainer(cfg, run_dir=tmp_path / transfer)
         target.init_from(ckpt, transfer)
         for part in ("encoder", "dynamics", "reward", "value", "policy"):
-            same = all(torch.equal(v, source.modules.state_dict()[f"{part}.{k}"])
-                       for k, v in getattr(target.modules, part).state_dict().items())
+            same = all(torch.equal(v, source.agent.modules.state_dict()[f"{part}.{k}"])
+                       for k, v in getattr(target.agent.modules, part).state_dict().items())
             assert same == (part in copied), (transfer, part)

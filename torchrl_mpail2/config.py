@@ -127,6 +127,17 @@ def check_fields(config) -> None:
             _check_scalar(where, value, kind, ranges.get(f.name))
 
 
+def build_section(section_cls: type, values: dict):
+    """``section_cls(**values)`` from JSON data: lists become the tuples the fields declare; an unknown field is
+    refused by name."""
+    known = {f.name for f in fields(section_cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(f"unknown {section_cls.__name__} field(s) {unknown}; known: {sorted(known)}")
+    kwargs = {k: tuple(v) if field_kind(section_cls, k).is_tuple and isinstance(v, list) else v for k, v in values.items()}
+    return section_cls(**kwargs)
+
+
 @dataclass
 class ModelConfig:
     """Sizes of the encoder, dynamics, reward, value and policy networks (Table 4, Fig. 14)."""

@@ -23,7 +23,7 @@ class MPAIL2Loss(MPAIL2LossBase):
     ``loss_alpha``) plus detached diagnostics, all computed from the same parameters. The paper updates
     the components one after the other (dynamics -> reward -> value -> policy), each with its own
     optimiser: :meth:`param_groups` gives those groups (encoder LR 3e-5, the rest 3e-4, gradient clip 5
-    for the value and 1 for the policy) and :class:`torchrl_mpail2.trainers.MPAIL2Updater` runs that
+    for the value and 1 for the policy) and :class:`torchrl_mpail2.agents.MPAIL2Updater` runs that
     order in one call. The sub-losses are available as ``loss.dynamics_loss``, ``loss.reward_loss``,
     ``loss.value_loss`` and ``loss.actor_loss``.
 

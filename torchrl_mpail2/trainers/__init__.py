@@ -1,10 +1,8 @@
-"""Training: the per-stage updater, the training loop, configs and presets."""
+"""Training: the loop, run configs and presets (the agent and its updaters are in :mod:`torchrl_mpail2.agents`)."""
 from torchrl_mpail2.trainers.config import ABLATIONS, ExperimentConfig, TrainConfig, apply_overrides
 from torchrl_mpail2.trainers.presets import PRESETS, preset
-from torchrl_mpail2.trainers.update import MPAIL2Updater
 
-__all__ = ["ABLATIONS", "ExperimentConfig", "TrainConfig", "apply_overrides", "PRESETS", "preset", "MPAIL2Updater",
-           "MPAIL2Trainer"]
+__all__ = ["ABLATIONS", "ExperimentConfig", "TrainConfig", "apply_overrides", "PRESETS", "preset", "MPAIL2Trainer"]
 
 
 def __getattr__(name):

@@ -7,25 +7,12 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import ClassVar
 
+from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
 from torchrl_mpail2.config import (
-    AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, check_fields,
-    field_kind,
+    AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
+    check_fields, field_kind,
 )
 
-#: Ablations of the paper's Table 2, as switches of one config.
-ABLATIONS = {
-    "none": "MPAIL2: planner, world model, off-policy reward/value/policy",
-    "P": "[-P] MAIRL: act with the policy (first step of its plan), no planner",
-    "O": "[-O] MPAIL: reward, value and policy trained on the latest episode only; world model off-policy",
-    "PM": "[-PM] DAC: no planner, no dynamics model; single-step policy, model-free soft Q, encoder trained by the value loss",
-    "PMO": "[-PMO] AIRL: DAC trained on the latest episode only",
-}
-#: Ablations that plan, that have no world model, and that train reward/value/policy on the latest episode only.
-PLANNING_ABLATIONS = ("none", "O")
-MODEL_FREE_ABLATIONS = ("PM", "PMO")
-LATEST_EPISODE_ABLATIONS = ("O", "PMO")
-
-UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
 RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads")
 
@@ -86,7 +73,7 @@ class TrainConfig:
     logger: str = "csv"
     """csv | wandb | tensorboard | none."""
     ablation: str = "none"
-    """One of ABLATIONS' keys."""
+    """A Table 2 name (``agents.switches.ABLATIONS``): none | P | O | PM | PMO."""
     threads: int | None = None
     """torch intra-op threads (None: torch's default)."""
     progress: bool = True
@@ -112,7 +99,7 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
-        if self.update_precision != "float32" and self.ablation in MODEL_FREE_ABLATIONS:
+        if self.update_precision != "float32" and not ABLATIONS[self.ablation].world_model:
             raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
                               f"not to the model-free ablation {self.ablation!r}")
         for name in ("env_kwargs", "expert_kwargs"):
@@ -150,17 +137,8 @@ class ExperimentConfig:
         parts = {}
         for f in fields(cls):
             section_cls = type(getattr(cls(), f.name))
-            parts[f.name] = _build(section_cls, data.get(f.name, {}))
+            parts[f.name] = build_section(section_cls, data.get(f.name, {}))
         return cls(**parts)
-
-
-def _build(section_cls, values: dict):
-    known = {f.name: f for f in fields(section_cls)}
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ConfigError(f"unknown {section_cls.__name__} field(s) {unknown}; known: {sorted(known)}")
-    kwargs = {k: tuple(v) if field_kind(section_cls, k).is_tuple and isinstance(v, list) else v for k, v in values.items()}
-    return section_cls(**kwargs)
 
 
 def _parse_scalar(text: str, base: type | None):

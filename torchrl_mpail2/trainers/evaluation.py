@@ -14,7 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
 
-__all__ = ["episode_outcome", "evaluate_episodes", "evaluation_seeds"]
+__all__ = ["episode_outcome", "evaluate_episodes", "evaluation_seeds", "summarize_outcomes"]
 
 #: Safety cap on an evaluation episode's length (the envs end their episodes themselves).
 MAX_EVAL_STEPS = 100_000
@@ -59,3 +59,15 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None) -> li
             planner.set_extra_state(saved[0])
             planner.generator = saved[1]
     return outcomes
+
+
+def summarize_outcomes(outcomes: list[dict[str, float]]) -> dict:
+    """The headline figures of :func:`evaluate_episodes`' outcomes: ``success_rate_any_step`` (the paper's
+    definition), ``success_rate`` (at the last step), mean ``return``, ``episodes`` and the per-episode any-step
+    successes."""
+    if not outcomes:
+        raise ValueError("no evaluation episodes to summarise")
+    mean = {key: sum(o[key] for o in outcomes) / len(outcomes) for key in outcomes[0]}
+    return {"success_rate_any_step": mean["success_any_step"], "success_rate": mean["success"],
+            "return": mean["task_return"], "episodes": len(outcomes),
+            "success_any_step_per_episode": [o["success_any_step"] for o in outcomes]}

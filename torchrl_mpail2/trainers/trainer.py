@@ -2,7 +2,6 @@
 a TensorDictReplayBuffer with a SliceSampler, a demonstration buffer and the per-stage updater."""
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import math
@@ -19,23 +18,15 @@ from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import SliceSampler
 from tqdm.auto import tqdm
 
+from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demos, record_demos
+from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.experts import get_expert
-from torchrl_mpail2.modules.factory import make_mpail2_modules
-from torchrl_mpail2.objectives.model_free import DACLoss
-from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
-from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
-from torchrl_mpail2.planners.policy_actor import NonFiniteActionError, PolicyActor, WarmupSwitch
-from torchrl_mpail2.trainers import checkpoint as ckpt
-from torchrl_mpail2.trainers.config import (
-    LATEST_EPISODE_ABLATIONS, MODEL_FREE_ABLATIONS, PLANNING_ABLATIONS, ExperimentConfig, apply_resume_overrides,
-    resolve_paths,
-)
-from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds
+from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
+from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
+from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.run_folder import RunFolder
-from torchrl_mpail2.trainers.model_free import ModelFreeUpdater
-from torchrl_mpail2.trainers.update import MPAIL2Updater
 
 log = logging.getLogger(__name__)
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
@@ -62,6 +53,9 @@ class MPAIL2Trainer:
         env_fn (Callable, optional): builds one environment (default: ``make_env(cfg.train.env, ...)``).
         demos (Demonstrations, optional): expert observations (default: ``cfg.train.demos`` or scripted demos).
         run_dir (str or Path, optional): overrides ``cfg.train.run_dir``.
+        agent (MPAIL2Agent, optional): the agent to train (default: built from ``cfg`` and the demos, with the
+            observation normalisation set from the demos). Its networks must match ``cfg.model``: checkpoints
+            record ``cfg`` as the run's config.
         if_exists (str): what to do with a run folder that already holds files: ``"refuse"`` (default),
             ``"overwrite"`` them, or ``"resume"`` (what :meth:`resume` passes). The folder is locked while the
             trainer uses it, so that two trainings cannot share it.
@@ -73,17 +67,18 @@ class MPAIL2Trainer:
     """
 
     def __init__(self, cfg: ExperimentConfig, *, env_fn: Callable | None = None, demos: Demonstrations | None = None,
-                 run_dir: str | Path | None = None, if_exists: str = "refuse"):
+                 run_dir: str | Path | None = None, if_exists: str = "refuse", agent: MPAIL2Agent | None = None):
         t = cfg.train
         run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
         self.run_folder = RunFolder(run_dir, if_exists)
         try:
-            self._build(resolve_paths(cfg, run_dir), env_fn, demos)
+            self._build(resolve_paths(cfg, run_dir), env_fn, demos, agent)
         except BaseException:
             self.run_folder.discard()  # a run that fails to start leaves nothing behind
             raise
 
-    def _build(self, cfg: ExperimentConfig, env_fn: Callable | None, demos: Demonstrations | None) -> None:
+    def _build(self, cfg: ExperimentConfig, env_fn: Callable | None, demos: Demonstrations | None,
+               agent: MPAIL2Agent | None) -> None:
         self.cfg = cfg
         t = cfg.train
         if t.threads:
@@ -98,24 +93,14 @@ class MPAIL2Trainer:
         self.run_dir = Path(t.run_dir)
         self.env = env_fn()
         self.demos = demos if demos is not None else self._load_or_record_demos()
-        model_free = t.ablation in MODEL_FREE_ABLATIONS
-        # the model-free ablations act with a single-step policy, as in the paper's baselines
-        model_cfg = dataclasses.replace(cfg.model, horizon=1) if model_free else cfg.model
-        self.modules = make_mpail2_modules(self.env.observation_spec, self.env.action_spec, model_cfg, demos=self.demos)
+        if agent is None:
+            agent = MPAIL2Agent(self.env.observation_spec, self.env.action_spec, cfg.model, cfg.loss, cfg.planner,
+                                ablation=t.ablation, update_precision=t.update_precision, demos=self.demos)
+        self.agent = agent
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
-        if model_free:
-            self.loss, self.planner = DACLoss(self.modules, cfg.loss), None
-            self.updater = ModelFreeUpdater(self.loss)
-        else:
-            self.loss = MPAIL2Loss(self.modules, cfg.loss)
-            self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=t.update_precision == "bf16_stop_gradient",
-                                         bf16=t.update_precision == "bf16")
-            self.planner = LatentMPPIPlanner(self.modules, self.env.action_spec, cfg.planner)
-        actor = self.planner if t.ablation in PLANNING_ABLATIONS else PolicyActor(self.modules)
-        self.actor = WarmupSwitch(actor, self.env.action_spec)
         horizon = cfg.model.horizon
         self.replay = self._make_replay(self.run_dir / "replay_storage", horizon)
-        self.latest = self._make_replay(None, horizon) if t.ablation in LATEST_EPISODE_ABLATIONS else None
+        self.latest = self._make_replay(None, horizon) if agent.switches.latest_episode_only else None
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
         self.best_eval = (-math.inf, -math.inf)  # (any-step, last-step) success of the best evaluation
         self._last_written = None  # episode count of the newest checkpoints/last
@@ -174,15 +159,15 @@ class MPAIL2Trainer:
         for _ in range(num_updates):
             td = self.sample_batch(self.replay)
             td_policy = self.sample_batch(self.latest) if self.latest is not None else None
-            metrics = self.updater.update(td, td_policy)
+            metrics = self.agent.updater.update(td, td_policy)
             if metrics is None:  # a batch holding NaN or Inf, skipped whole
-                nonfinite_keys.update(self.updater.last_nonfinite_keys)
+                nonfinite_keys.update(self.agent.updater.last_nonfinite_keys)
                 continue
             applied += 1
             sums = metrics if sums is None else sums + metrics  # stays on device: one transfer per episode
         self.counters["updates"] += applied
         out = {k: float(v) / max(applied, 1) for k, v in ({} if sums is None else sums).items()}
-        out["nonfinite_skips"] = float(sum(self.updater.skipped.values()))  # a running count, not a mean
+        out["nonfinite_skips"] = float(sum(self.agent.updater.skipped.values()))  # a running count, not a mean
         if nonfinite_keys:
             out["nonfinite_batch_keys"] = sorted(nonfinite_keys)
         out["update_ms"] = 1000 * (time.perf_counter() - start) / max(num_updates, 1)
@@ -201,12 +186,9 @@ class MPAIL2Trainer:
         figure; ``success_rate`` counts episodes whose last step is a success.
         """
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.eval_seed)
-        outcomes = evaluate_episodes(env, self.actor.actor, self.evaluation_seeds(episodes), self.planner)
-        mean = {key: sum(o[key] for o in outcomes) / len(outcomes) for key in outcomes[0]}
-        return {"success_rate_any_step": mean["success_any_step"], "success_rate": mean["success"],
-                "return": mean["task_return"], "normalized_return": self.normalized_return(mean["task_return"]),
-                "episodes": len(outcomes),
-                "success_any_step_per_episode": [o["success_any_step"] for o in outcomes]}
+        summary = summarize_outcomes(evaluate_episodes(env, self.agent.policy, self.evaluation_seeds(episodes),
+                                                       self.agent.planner))
+        return {**summary, "normalized_return": self.normalized_return(summary["return"])}
 
     def normalized_return(self, task_return: float) -> float:
         """``task_return`` over the demonstrations' mean return (``nan`` where the demos hold no usable mean)."""
@@ -215,10 +197,7 @@ class MPAIL2Trainer:
 
     # ---- checkpoints -----------------------------------------------------------------------------
     def state_dict(self) -> dict:
-        return {"modules": self.modules.state_dict(), "loss": self.loss.state_dict(),
-                "updater": self.updater.state_dict(),
-                "planner": self.planner.get_extra_state() if self.planner is not None else None,
-                "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
+        return {**self.agent.state_dict(), "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
                 "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict()}
 
     def save(self, tag: str, with_replay: bool = False) -> Path:
@@ -236,11 +215,7 @@ class MPAIL2Trainer:
         """
         state = ckpt.read_checkpoint(path)
         ckpt.check_compatible(state["config"], self.cfg.to_dict(), Path(path))
-        self.modules.load_state_dict(state["modules"])
-        self.loss.load_state_dict(state["loss"])
-        self.updater.load_state_dict(state["updater"])
-        if self.planner is not None:
-            self.planner.set_extra_state(state["planner"])
+        self.agent.load_state_dict(state)
         self.demo_buffer.generator.set_state(state["demo_rng"])
         ckpt.set_rng_state(state["rng"])
         self.counters.update(state["counters"])
@@ -257,16 +232,16 @@ class MPAIL2Trainer:
         weights = ckpt.read_checkpoint(path)["modules"]
         for part in TRANSFER_PARTS[transfer]:
             prefix = part + "."
-            getattr(self.modules, part).load_state_dict({k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
+            getattr(self.agent.modules, part).load_state_dict({k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
         if transfer == "all":
-            self.loss.value_loss.target_qvalue_network_params.data.update_(self.loss.value_loss.qvalue_network_params.data)
+            self.agent.loss.value_loss.target_qvalue_network_params.data.update_(self.agent.loss.value_loss.qvalue_network_params.data)
 
     @classmethod
     def resume(cls, run_dir: str | Path, overrides: list[str] | None = None, **kwargs) -> "MPAIL2Trainer":
         """Rebuilds a run from its ``config.json`` and continues from its newest complete checkpoint.
 
         That is ``checkpoints/last`` unless a crash left it missing or damaged (see
-        :func:`~torchrl_mpail2.trainers.checkpoint.find_resumable`); a run killed before its first checkpoint
+        :func:`~torchrl_mpail2.data.checkpoint.find_resumable`); a run killed before its first checkpoint
         starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.trainers.config.RESUME_FIELDS`,
         e.g. ``["train.total_episodes=400"]`` to extend a finished run.
         """
@@ -302,7 +277,7 @@ class MPAIL2Trainer:
     # ---- the loop --------------------------------------------------------------------------------
     def _collector(self) -> Collector:
         env = self.env_fn(seed=self.cfg.train.seed + self.counters["episodes"])
-        return Collector(env, self.actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=1, traj_format="padded")
+        return Collector(env, self.agent.actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=1, traj_format="padded")
 
     def _store(self, episode: TensorDict) -> TensorDict:
         episode = episode[0][episode[0].get(("collector", "mask"))]
@@ -324,7 +299,7 @@ class MPAIL2Trainer:
             try:
                 return next(state["iterator"])
             except NonFiniteActionError as err:
-                skipped = dict(self.updater.skipped)
+                skipped = dict(self.agent.updater.skipped)
                 raise NonFiniteActionError(f"episode {self.counters['episodes'] + 1}, after {self.counters['updates']} "
                                            f"updates: {err} Non-finite skips so far: {skipped or 'none'}.") from err
             except (RuntimeError, ValueError, FloatingPointError) as err:
@@ -357,7 +332,7 @@ class MPAIL2Trainer:
                     log.warning("stopping at the wall-clock budget of %.0f s", t.max_wall_s)
                     break
                 # the first step of an episode may already be in flight when the previous one is yielded
-                self.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
+                self.agent.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
                 tick = time.perf_counter()
                 batch = self._next_episode(state)
                 collect_s = time.perf_counter() - tick
@@ -414,13 +389,13 @@ class MPAIL2Trainer:
 
     def _episode_record(self, episode: TensorDict) -> dict:
         record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0], **episode_outcome(episode),
-                  "random_actions": bool(self.actor.random_actions)}
-        if "policy_influence" in episode.keys() and not self.actor.random_actions:
+                  "random_actions": bool(self.agent.actor.random_actions)}
+        if "policy_influence" in episode.keys() and not self.agent.actor.random_actions:
             record["policy_influence"] = float(episode["policy_influence"].mean())
         normalized = self.normalized_return(record["task_return"])
         if math.isfinite(normalized):
             record["normalized_return"] = normalized
-        acting = self.actor.pop_stats()
-        if not self.actor.random_actions:
+        acting = self.agent.actor.pop_stats()
+        if not self.agent.actor.random_actions:
             record.update(acting)
         return record

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.trainers.update import MPAIL2Updater
+from torchrl_mpail2.agents.update import MPAIL2Updater
 
 
 class ModelFreeUpdater(MPAIL2Updater):

@@ -1,0 +1,139 @@
+"""The agent object: built from switches, loaded from a checkpoint on its own, handed to the trainer."""
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from torchrl_mpail2.agents import ABLATIONS, AgentSwitches, MPAIL2Agent, switches_for
+from torchrl_mpail2.config import ModelConfig, PlannerConfig
+from torchrl_mpail2.data import record_demos
+from torchrl_mpail2.data.checkpoint import CheckpointError
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.experts import PointMassExpert
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_MODEL = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
+TINY_PLANNER = PlannerConfig(num_candidates=16, num_elites=4, iterations=2)
+
+
+def _cfg(*overrides):
+    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.eval_episodes=3",
+                                                  "planner.num_candidates=32", "planner.num_elites=4", *overrides])
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("agent")
+    cfg = _cfg("train.total_episodes=3", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=3",
+               "train.checkpoint_every=3", f"train.demos={root / 'demos'}")
+    record_demos(make_env("point_mass", seed=5), PointMassExpert(), 3, out=root / "demos", progress=False)
+    trainer = MPAIL2Trainer(cfg, run_dir=root / "run")
+    trainer.train()
+    return trainer, root / "run"
+
+
+def test_ablation_names_are_presets_of_the_switches():
+    assert switches_for("none") == AgentSwitches(description=ABLATIONS["none"].description)
+    assert switches_for("P").act_with == "policy" and switches_for("P").world_model
+    assert switches_for("O").latest_episode_only and switches_for("O").act_with == "planner"
+    assert not switches_for("PM").world_model and not switches_for("PM").latest_episode_only
+    assert not switches_for("PMO").world_model and switches_for("PMO").latest_episode_only
+    with pytest.raises(ValueError, match="unknown ablation 'Q'"):
+        switches_for("Q")
+    with pytest.raises(ValueError, match="world_model=False"):
+        AgentSwitches(act_with="planner", world_model=False)
+    with pytest.raises(ValueError, match="policy_data"):
+        AgentSwitches(policy_data="latest")
+
+
+@pytest.mark.parametrize("ablation", sorted(ABLATIONS))
+def test_the_agent_builds_what_its_switches_say(ablation):
+    env = make_env("point_mass")
+    agent = MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, planner=TINY_PLANNER, ablation=ablation)
+    s = agent.switches
+    assert (agent.planner is not None) == s.world_model
+    assert (agent.policy is agent.planner) == (s.act_with == "planner")
+    assert agent.modules.policy.net.horizon == (TINY_MODEL.horizon if s.world_model else 1)
+    td = agent.actor(env.reset())
+    assert td["action"].shape == env.action_spec.shape
+
+
+def test_bad_agent_settings_are_refused_by_name():
+    env = make_env("point_mass")
+    with pytest.raises(ValueError, match="update_precision 'fp8'"):
+        MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, update_precision="fp8")
+    with pytest.raises(ValueError, match="model-based updater only"):
+        MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, ablation="PM", update_precision="bf16")
+    with pytest.raises(ValueError, match="gamma"):
+        MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, planner=PlannerConfig(gamma=0.9))
+
+
+def test_an_agent_loaded_from_a_checkpoint_plays_exactly_like_the_trainer(trained_run):
+    trainer, run_dir = trained_run
+    path = run_dir / "checkpoints" / "episode_000003"
+    trainer.load(path, with_replay=False)
+    expected = trainer.evaluate()
+    # on its own: no trainer, no replay, no demos; the env is the run's own, built from the checkpoint's config
+    agent = MPAIL2Agent.from_checkpoint(path)
+    for key, value in trainer.agent.modules.state_dict().items():
+        assert torch.equal(agent.modules.state_dict()[key], value), key
+    env = make_env("point_mass")
+    seeds = evaluation_seeds(trainer.cfg.train.eval_seed, trainer.cfg.train.eval_episodes)
+    got = summarize_outcomes(evaluate_episodes(env, agent.policy, seeds, agent.planner))
+    assert got == {k: v for k, v in expected.items() if k != "normalized_return"}
+    # the optimisers stay fresh unless asked for
+    assert not agent.updater.optimizers["dynamics"].state
+    assert MPAIL2Agent.from_checkpoint(path, env, with_optimizers=True).updater.optimizers["dynamics"].state
+
+
+def test_a_damaged_or_configless_checkpoint_is_refused_by_name(trained_run, tmp_path):
+    _, run_dir = trained_run
+    damaged = tmp_path / "damaged"
+    shutil.copytree(run_dir / "checkpoints" / "best", damaged)
+    with open(damaged / "state.pt", "r+b") as f:
+        f.truncate(100)
+    with pytest.raises(CheckpointError, match="state.pt"):
+        MPAIL2Agent.from_checkpoint(damaged)
+    configless = tmp_path / "configless"
+    shutil.copytree(run_dir / "checkpoints" / "best", configless)
+    state = torch.load(configless / "state.pt", weights_only=False)
+    del state["config"]
+    torch.save(state, configless / "state.pt")
+    (configless / "manifest.json").unlink()  # an unverified checkpoint (warned about), but readable
+    with pytest.warns(RuntimeWarning), pytest.raises(CheckpointError, match="no run config"):
+        MPAIL2Agent.from_checkpoint(configless)
+
+
+def test_the_trainer_trains_the_agent_it_is_given(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cfg = _cfg("train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=0")
+    env = make_env("point_mass")
+    agent = MPAIL2Agent(env.observation_spec, env.action_spec, cfg.model, cfg.loss, cfg.planner)
+    before = {k: v.clone() for k, v in agent.modules.state_dict().items()}
+    trainer = MPAIL2Trainer(cfg, run_dir=tmp_path / "run", agent=agent)
+    assert trainer.agent is agent
+    summary = trainer.train()
+    assert summary["updates"] > 0
+    assert any(not torch.equal(v, agent.modules.state_dict()[k]) for k, v in before.items())
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert saved["model"]["latent_dim"] == cfg.model.latent_dim
+
+
+def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(trained_run, monkeypatch):
+    """``benchmarks/evaluate_checkpoints.py`` loads agents alone and replays the fixed evaluation set."""
+    trainer, run_dir = trained_run
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("evaluate_checkpoints", ROOT / "benchmarks" / "evaluate_checkpoints.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    result = bench.evaluate_run(run_dir, episodes=trainer.cfg.train.eval_episodes)
+    logged = [json.loads(line) for line in (run_dir / "eval.jsonl").read_text().splitlines()]
+    assert [row["episode"] for row in result["checkpoints"]] == [3]
+    row = result["checkpoints"][0]
+    assert row["success_any_step_per_episode"] == logged[-1]["success_any_step_per_episode"]
+    assert row["success_rate"] == logged[-1]["success_rate"]

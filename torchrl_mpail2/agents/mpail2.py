@@ -1,0 +1,156 @@
+"""The MPAIL2 agent: networks, losses, optimisers and actor as one object with one state dict.
+
+A training loop receives it (:class:`~torchrl_mpail2.trainers.MPAIL2Trainer`); evaluation, planning pictures and
+the learned-reward transform load it from a checkpoint on their own (:meth:`MPAIL2Agent.from_checkpoint`), without
+a run folder, a replay buffer or demonstrations.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from tensordict import TensorDictBase
+
+from torchrl_mpail2.agents.model_free_update import ModelFreeUpdater
+from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, switches_for
+from torchrl_mpail2.agents.update import MPAIL2Updater
+from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section
+from torchrl_mpail2.data import Demonstrations
+from torchrl_mpail2.data import checkpoint as ckpt
+from torchrl_mpail2.modules.factory import make_mpail2_modules
+from torchrl_mpail2.objectives.model_free import DACLoss
+from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
+from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
+from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
+
+__all__ = ["MPAIL2Agent"]
+#: The parts of :meth:`MPAIL2Agent.state_dict` (a training checkpoint's ``state.pt`` holds them at its top level).
+AGENT_STATE_KEYS = ("modules", "loss", "updater", "planner", "observation_keys")
+
+
+class MPAIL2Agent:
+    """Encoder, dynamics, reward, Q-ensemble and policy with their losses, optimisers and actor.
+
+    Args:
+        observation_spec (Composite): the environment's observation spec.
+        action_spec (TensorSpec): its action spec (flat ``[A]``, bounded to ``[-1, 1]``).
+        model (ModelConfig, optional): network sizes (Table 4).
+        loss (LossConfig, optional): loss coefficients and learning rates (Table 4).
+        planner (PlannerConfig, optional): latent MPPI settings (Table 4).
+
+    Keyword Args:
+        ablation (str): a Table 2 name resolved by :func:`~torchrl_mpail2.agents.switches.switches_for`
+            (``"none"``: MPAIL2). Ignored when ``switches`` is given.
+        switches (AgentSwitches, optional): the parts to use, directly.
+        update_precision (str): ``float32`` | ``bf16_stop_gradient`` | ``bf16`` (see :class:`MPAIL2Updater`).
+        demos (Demonstrations, optional): set the observation normalisation from the demonstrations and encode
+            their keys.
+        observation_keys (list[str], optional): the observation keys to encode (default: the demos' keys, else
+            every observation of the spec).
+
+    Attributes:
+        modules, loss, updater: the networks, the composite loss and the per-stage updater.
+        planner (LatentMPPIPlanner or None): None for the model-free switches.
+        actor (WarmupSwitch): what a collector drives: random warm-up actions, then the planner or the policy.
+        policy: the deterministic acting module inside ``actor`` (what evaluation plays).
+
+    Examples:
+        >>> from torchrl_mpail2.envs import make_env
+        >>> env = make_env("point_mass")
+        >>> model = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
+        >>> agent = MPAIL2Agent(env.observation_spec, env.action_spec, model,
+        ...                     planner=PlannerConfig(num_candidates=16, num_elites=4, iterations=2))
+        >>> td = agent.actor(env.reset())
+        >>> td["action"].shape
+        torch.Size([2])
+    """
+
+    def __init__(self, observation_spec, action_spec, model: ModelConfig | None = None,
+                 loss: LossConfig | None = None, planner: PlannerConfig | None = None, *, ablation: str = "none",
+                 switches: AgentSwitches | None = None, update_precision: str = "float32",
+                 demos: Demonstrations | None = None, observation_keys: list[str] | None = None):
+        self.switches = switches or switches_for(ablation)
+        if update_precision not in UPDATE_PRECISIONS:
+            raise ValueError(f"unknown update_precision {update_precision!r}; choose from {UPDATE_PRECISIONS}")
+        model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
+        if loss.gamma != planner.gamma:
+            raise ValueError(f"loss.gamma ({loss.gamma}) and planner.gamma ({planner.gamma}) must agree")
+        if not self.switches.world_model:
+            # the model-free ablations act with a single-step policy, as in the paper's baselines
+            model = dataclasses.replace(model, horizon=1)
+            if update_precision != "float32":
+                raise ValueError(f"update_precision={update_precision!r} applies to the model-based updater only")
+        self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys, demos=demos)
+        if self.switches.world_model:
+            self.loss = MPAIL2Loss(self.modules, loss)
+            self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=update_precision == "bf16_stop_gradient",
+                                         bf16=update_precision == "bf16")
+            self.planner = LatentMPPIPlanner(self.modules, action_spec, planner)
+        else:
+            self.loss, self.planner = DACLoss(self.modules, loss), None
+            self.updater = ModelFreeUpdater(self.loss)
+        policy = self.planner if self.switches.act_with == "planner" else PolicyActor(self.modules)
+        self.actor = WarmupSwitch(policy, action_spec)
+
+    @property
+    def policy(self):
+        """The deterministic acting module (planner or policy actor), without the warm-up switch."""
+        return self.actor.actor
+
+    def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None):
+        """One learner update (see :meth:`MPAIL2Updater.update`)."""
+        return self.updater.update(tensordict, policy_tensordict)
+
+    def state_dict(self) -> dict:
+        return {"modules": self.modules.state_dict(), "loss": self.loss.state_dict(),
+                "updater": self.updater.state_dict(),
+                "planner": self.planner.get_extra_state() if self.planner is not None else None,
+                "observation_keys": list(self.modules.encoder.in_keys)}
+
+    def load_state_dict(self, state: dict, *, with_optimizers: bool = True) -> None:
+        """Restores networks, loss state (``log_alpha``, targets, reward scale), planner warm start and, with
+        ``with_optimizers``, the optimisers."""
+        self.modules.load_state_dict(state["modules"])
+        self.loss.load_state_dict(state["loss"])
+        if with_optimizers:
+            self.updater.load_state_dict(state["updater"])
+        if self.planner is not None and state.get("planner") is not None:
+            self.planner.set_extra_state(state["planner"])
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, env=None, *, with_optimizers: bool = False) -> "MPAIL2Agent":
+        """The agent of a training checkpoint (``RUN/checkpoints/best``, ``.../last`` or ``.../episode_N``).
+
+        Args:
+            path: the checkpoint folder (verified against its manifest).
+            env (EnvBase, optional): an environment with the run's specs; default: the run's own, built from the
+                checkpoint's config (``train.env``, ``train.obs``, ``train.env_kwargs``) and closed again.
+
+        Keyword Args:
+            with_optimizers (bool): restore the optimisers too (to go on training). Defaults to False.
+
+        Raises:
+            CheckpointError: the checkpoint is missing or damaged (the message names the file).
+        """
+        path = Path(path)
+        state = ckpt.read_checkpoint(path)
+        config = state.get("config")
+        if not isinstance(config, dict) or not {"train", "model", "loss", "planner"} <= set(config):
+            raise ckpt.CheckpointError(f"{path} holds no run config (sections train, model, loss, planner)")
+        train = config["train"]
+        own_env = env is None
+        if own_env:
+            from torchrl_mpail2.envs import make_env
+
+            env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
+        try:
+            agent = cls(env.observation_spec, env.action_spec, build_section(ModelConfig, config["model"]),
+                        build_section(LossConfig, config["loss"]), build_section(PlannerConfig, config["planner"]),
+                        ablation=train.get("ablation", "none"),
+                        update_precision=train.get("update_precision", "float32"),
+                        observation_keys=state.get("observation_keys"))
+        finally:
+            if own_env:
+                env.close()
+        agent.load_state_dict(state, with_optimizers=with_optimizers)
+        return agent
