@@ -30,7 +30,7 @@ from torchrl_mpail2.objectives import (
     MultiStepActorLoss,
 )
 from torchrl_mpail2.planners import LatentMPPIPlanner, LatentWorldModelEnv
-from torchrl_mpail2.agents import MPAIL2Agent, MPAIL2Updater
+from torchrl_mpail2.agents import LearnedRewardTransform, MPAIL2Agent, MPAIL2Updater
 
 __version__ = "0.1.0.dev0"
 
@@ -46,6 +46,6 @@ __all__ = [
     "ConfigError", "LossConfig", "ModelConfig", "PlannerConfig", "ExperimentConfig", "MPAIL2Trainer",
     "LatentDynamics", "MPAIL2Modules", "MultiStepPolicy", "ObservationEncoder", "QEnsemble", "TransitionReward",
     "make_mpail2_modules", "AdversarialRewardLoss", "JEPDynamicsLoss", "LambdaReturnValueLoss", "MPAIL2Loss",
-    "MultiStepActorLoss", "LatentMPPIPlanner", "LatentWorldModelEnv", "MPAIL2Agent", "MPAIL2Updater",
+    "MultiStepActorLoss", "LatentMPPIPlanner", "LatentWorldModelEnv", "LearnedRewardTransform", "MPAIL2Agent", "MPAIL2Updater",
     "AttachExpertWindows", "DemoBuffer", "Demonstrations", "demos_from_arrays", "load_demos", "record_demos", "save_demos",
 ]

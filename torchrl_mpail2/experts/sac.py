@@ -1,4 +1,5 @@
-"""Experts for the gymnasium MuJoCo tasks, trained with TorchRL's own SAC.
+"""Experts for the gymnasium MuJoCo tasks, trained with TorchRL's own SAC (:func:`fit_sac`, also used to train
+SAC on MPAIL2's learned reward).
 
     python -m torchrl_mpail2.experts.sac --env Hopper-v5 --frames 150000 --out torchrl_mpail2/assets/experts/Hopper-v5.pt
 
@@ -60,9 +61,69 @@ def _save(out: Path, env_id: str, obs_dim: int, actor, summary: dict) -> None:
     tmp_json.replace(out.with_suffix(".json"))
 
 
+def fit_sac(env, frames: int, *, reward_key: str = "task_reward", warmup: int = 5000, batch_size: int = 256,
+            progress: bool = True, desc: str = "SAC", on_frames=None) -> ProbabilisticActor:
+    """TorchRL's ``SACLoss`` (two Q nets, auto alpha, UTD 1) on ``env``, learning from ``("next", reward_key)``.
+
+    Args:
+        env (EnvBase): an env with an ``"observation"`` vector and a bounded ``[A]`` action; it must write
+            ``reward_key`` (the task reward, or e.g. :class:`~torchrl_mpail2.agents.LearnedRewardTransform`'s).
+        frames (int): environment steps, the first ``warmup`` of them with random actions.
+
+    Keyword Args:
+        on_frames (callable, optional): ``on_frames(actor, frames_done, recent_returns)`` after each collected
+            batch (``recent_returns``: the last 10 finished episodes' summed task rewards).
+
+    Returns:
+        the trained actor (stochastic; act with ``ExplorationType.DETERMINISTIC`` for its mean).
+    """
+    if reward_key not in env.full_reward_spec.keys(True, True):
+        raise KeyError(f"fit_sac: the env has no reward {reward_key!r}; its rewards: {list(env.reward_keys)}")
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    actor = make_actor(obs_dim, env.action_spec)
+    qnet = MLP(in_features=obs_dim + env.action_spec.shape[-1], out_features=1, num_cells=list(HIDDEN), activation_class=nn.ReLU)
+    qvalue = ValueOperator(qnet, in_keys=["observation", "action"])
+    with torch.no_grad():
+        actor(env.reset())
+    loss = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", delay_qvalue=True, alpha_init=1.0)
+    loss.set_keys(reward=reward_key)
+    loss.make_value_estimator(gamma=0.99)
+    target = SoftUpdate(loss, tau=0.005)
+    optim = torch.optim.Adam(loss.parameters(), lr=3e-4)
+    replay = TensorDictReplayBuffer(storage=LazyTensorStorage(frames), batch_size=batch_size)
+    collector = Collector(env, actor, frames_per_batch=min(1000, frames), total_frames=frames, init_random_frames=warmup)
+    done_frames, episode_returns = 0, []
+    bar = tqdm(total=frames, disable=not progress, desc=desc)
+    try:
+        for batch in collector:
+            replay.extend(batch.reshape(-1))
+            done_frames += batch.numel()
+            ended = batch["next", "done"].squeeze(-1)
+            episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
+            if done_frames >= warmup:
+                for _ in range(batch.numel()):
+                    losses = loss(replay.sample())
+                    total = losses["loss_actor"] + losses["loss_qvalue"] + losses["loss_alpha"]
+                    optim.zero_grad()
+                    total.backward()
+                    optim.step()
+                    target.step()
+            bar.update(batch.numel())
+            recent = episode_returns[-10:]
+            if recent:
+                bar.set_postfix(ret=f"{sum(recent) / len(recent):.1f}")
+            if on_frames is not None:
+                on_frames(actor, done_frames, recent)
+    finally:
+        bar.close()
+        collector.shutdown()
+    return actor
+
+
 def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 5000, batch_size: int = 256,
               eval_episodes: int = 10, progress: bool = True, save_every: int = 25_000) -> dict:
-    """Trains a SAC expert on ``gym/<env_id>`` and saves its actor; returns a summary (also written as JSON).
+    """Trains a SAC expert on ``gym/<env_id>`` with the task reward and saves its actor; returns a summary (also
+    written as JSON).
 
     Every ``save_every`` frames the current actor is saved (marked ``"finished": false``, with the mean of the
     last 10 training episodes' returns), so a run that is stopped early still leaves usable weights.
@@ -72,45 +133,18 @@ def train_sac(env_id: str, frames: int, out: Path, seed: int = 0, warmup: int = 
     torch.manual_seed(seed)
     env = make_env(f"gym/{env_id}", seed=seed)
     obs_dim = env.observation_spec["observation"].shape[-1]
-    actor = make_actor(obs_dim, env.action_spec)
-    qnet = MLP(in_features=obs_dim + env.action_spec.shape[-1], out_features=1, num_cells=list(HIDDEN), activation_class=nn.ReLU)
-    qvalue = ValueOperator(qnet, in_keys=["observation", "action"])
-    with torch.no_grad():
-        actor(env.reset())
-    loss = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", delay_qvalue=True, alpha_init=1.0)
-    loss.set_keys(reward="task_reward")
-    loss.make_value_estimator(gamma=0.99)
-    target = SoftUpdate(loss, tau=0.005)
-    optim = torch.optim.Adam(loss.parameters(), lr=3e-4)
-    replay = TensorDictReplayBuffer(storage=LazyTensorStorage(frames), batch_size=batch_size)
-    collector = Collector(env, actor, frames_per_batch=min(1000, frames), total_frames=frames, init_random_frames=warmup)
-    start, done_frames, episode_returns = time.perf_counter(), 0, []
-    bar = tqdm(total=frames, disable=not progress, desc=f"SAC {env_id}")
-    for batch in collector:
-        replay.extend(batch.reshape(-1))
-        done_frames += batch.numel()
-        ended = batch["next", "done"].squeeze(-1)
-        episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
-        if done_frames >= warmup:
-            for _ in range(batch.numel()):
-                losses = loss(replay.sample())
-                total = losses["loss_actor"] + losses["loss_qvalue"] + losses["loss_alpha"]
-                optim.zero_grad()
-                total.backward()
-                optim.step()
-                target.step()
-        bar.update(batch.numel())
-        recent = episode_returns[-10:]
-        if recent:
-            bar.set_postfix(ret=f"{sum(recent) / len(recent):.0f}")
-        if save_every and done_frames % save_every < batch.numel() and recent:
+    start = time.perf_counter()
+
+    def save_now(actor, done_frames, recent):
+        if save_every and done_frames % save_every < min(1000, frames) and recent:
             _save(out, env_id, obs_dim, actor, {"env": env_id, "frames": done_frames, "seed": seed, "finished": False,
                                                  "train_seconds": time.perf_counter() - start,
                                                  "train_mean_return_last10": sum(recent) / len(recent)})
-    bar.close()
-    collector.shutdown()
+
+    actor = fit_sac(env, frames, warmup=warmup, batch_size=batch_size, progress=progress, desc=f"SAC {env_id}",
+                    on_frames=save_now)
     returns = evaluate(make_env(f"gym/{env_id}", seed=seed + 10_000), actor, eval_episodes)
-    summary = {"env": env_id, "frames": done_frames, "seed": seed, "finished": True,
+    summary = {"env": env_id, "frames": frames, "seed": seed, "finished": True,
                "train_seconds": time.perf_counter() - start, "threads": torch.get_num_threads(),
                "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns)}
     _save(out, env_id, obs_dim, actor, summary)
