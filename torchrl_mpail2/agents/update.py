@@ -10,7 +10,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
-from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
+from torchrl_mpail2.objectives import sample_window_transitions
+from torchrl_mpail2.objectives._base import MPAIL2LossBase
 from torchrl_mpail2.objectives._imagination import stop_gradient_precision
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 

@@ -1,4 +1,5 @@
 """TorchRL loss modules of MPAIL2, one per optimiser."""
+from torchrl_mpail2.objectives._base import sample_window_transitions
 from torchrl_mpail2.objectives.actor import MultiStepActorLoss
 from torchrl_mpail2.objectives.dynamics import JEPDynamicsLoss
 from torchrl_mpail2.objectives.model_free import DACLoss, ModelFreeActorLoss, ModelFreeValueLoss
@@ -7,4 +8,4 @@ from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 from torchrl_mpail2.objectives.value import LambdaReturnValueLoss
 
 __all__ = ["DACLoss", "ModelFreeActorLoss", "ModelFreeValueLoss", "MultiStepActorLoss", "JEPDynamicsLoss", "MPAIL2Loss", "UPDATE_ORDER", "AdversarialRewardLoss",
-           "LambdaReturnValueLoss"]
+           "LambdaReturnValueLoss", "sample_window_transitions"]

@@ -1,0 +1,159 @@
+"""Algorithm 1 of the paper (MPAIL2), spelled out top to bottom with the library's pieces.
+
+Everything `MPAIL2Trainer` and `MPAIL2Updater` do for a run is written out here, in the paper's order: the
+environment and the observation-only demonstrations, the five networks, the four losses with their optimisers,
+TorchRL's collector driving the latent MPPI planner, the replay buffer whose SliceSampler draws H-step windows,
+and the evaluation on fixed episodes. What it leaves out (checkpoints, resuming, logging, the ablations, mixed
+precision) is the trainer's business; `tests/test_examples.py` checks that one update here moves every weight
+exactly as `MPAIL2Updater` does.
+
+    python examples/algorithm1.py                                    # the point mass: about 3 minutes, one thread
+    python examples/algorithm1.py --preset push_state --episodes 100 # robosuite Push from state: hours on a CPU
+"""
+from __future__ import annotations
+
+import argparse
+
+import torch
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers import SliceSampler
+from torchrl.objectives import SoftUpdate
+
+from torchrl_mpail2 import (AdversarialRewardLoss, AttachExpertWindows, JEPDynamicsLoss, LambdaReturnValueLoss,
+                            LatentMPPIPlanner, MultiStepActorLoss, make_mpail2_modules, record_demos)
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.experts import get_expert
+from torchrl_mpail2.objectives import sample_window_transitions
+from torchrl_mpail2.planners.policy_actor import WarmupSwitch
+from torchrl_mpail2.trainers import preset
+from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
+
+#: Where the collector writes each trajectory's id (the SliceSampler keeps windows inside one trajectory).
+TRAJ_IDS = ("collector", "traj_ids")
+
+
+class Losses:
+    """The four objectives of Section 3, each with its own Adam optimiser (Table 4's learning rates and clips)."""
+
+    def __init__(self, modules, cfg):
+        m, c = modules, cfg
+        # Eq. 2: multi-step latent prediction against stop-gradient encodings of the observed future.
+        self.dynamics = JEPDynamicsLoss(m.encoder, m.dynamics, rho=c.rho)
+        # Eq. 3: WGAN-GP critic r(z, z'): expert transitions up, replayed ones down, gradient penalty (App. A).
+        self.reward = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=c.gp_coef,
+                                            scale_momentum=c.reward_scale_momentum)
+        # Eqs. 5-6: the Q-ensemble regressed on lambda-returns of imagined rollouts under the learned reward.
+        self.value = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=c.gamma,
+                                           lmbda=c.lmbda, return_form=c.return_form, mask_terminal=c.mask_terminal)
+        # Eq. 7: the multi-step policy maximises the same return plus an entropy bonus (alpha tuned, Eq. 8).
+        self.actor = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=c.gamma,
+                                        lmbda=c.lmbda, return_form=c.return_form, q_reduce=c.actor_q_reduce,
+                                        init_alpha=c.init_alpha, target_entropy_per_step=c.target_entropy_per_step)
+        adam = torch.optim.Adam
+        # the encoder learns only through the dynamics loss, ten times slower than the rest (Table 4)
+        self.optimizers = {
+            "dynamics": adam([{"params": m.encoder.parameters(), "lr": c.encoder_lr},
+                              {"params": m.dynamics.parameters(), "lr": c.lr}]),
+            "reward": adam(m.reward.parameters(), lr=c.lr),
+            "value": adam(m.value.parameters(), lr=c.lr),
+            "actor": adam(m.policy.parameters(), lr=c.lr),
+            "alpha": adam([self.actor.log_alpha], lr=c.alpha_lr),
+        }
+        self.clips = {"value": c.value_grad_clip, "actor": c.policy_grad_clip}
+        self.polyak = SoftUpdate(self.value, tau=c.tau)  # the target Q-ensemble trails the online one
+        self.transitions_per_window = c.transitions_per_window
+
+    def step(self, stage: str, loss: torch.Tensor) -> None:
+        """One gradient step of one stage's optimiser (a non-finite loss is skipped)."""
+        if not torch.isfinite(loss):
+            return
+        optimizer = self.optimizers[stage]
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.clips.get(stage) is not None:
+            params = [p for group in optimizer.param_groups for p in group["params"]]
+            torch.nn.utils.clip_grad_norm_(params, self.clips[stage])
+        optimizer.step()
+
+    def update(self, batch) -> dict:
+        """Algorithm 1's inner loop on one batch of replayed H-step windows ``[B, H]`` with expert windows."""
+        out = self.dynamics(batch)  # 1. encoder + dynamics on whole windows
+        self.step("dynamics", out["loss_dynamics"])
+        # The reward, value and policy objectives are expectations over single transitions: draw a few per window.
+        transitions = sample_window_transitions(batch, self.transitions_per_window)
+        out.update(self.reward(transitions))  # 2. the critic (stop-gradient latents: the encoder is not moved)
+        self.step("reward", out["loss_reward"])
+        out.update(self.value(transitions))  # 3. the Q-ensemble, then Polyak averaging of its target
+        self.step("value", out["loss_value"])
+        self.polyak.step()
+        out.update(self.actor(transitions))  # 4. the policy, then the entropy temperature
+        self.step("actor", out["loss_actor"])
+        self.step("alpha", out["loss_alpha"])
+        return {k: float(v.detach()) for k, v in out.items()}
+
+
+def evaluate(env, planner, cfg, episodes: int) -> dict:
+    """Deterministic planner on the fixed evaluation episodes (env seed ``eval_seed + i``, noise seeded alike)."""
+    return summarize_outcomes(evaluate_episodes(env, planner, evaluation_seeds(cfg.train.eval_seed, episodes), planner))
+
+
+def main(preset_name: str = "point_mass", episodes: int | None = None, num_demos: int | None = None,
+         eval_every: int | None = None, eval_episodes: int | None = None, updates_per_episode: int | None = None,
+         seed: int = 0, overrides=None) -> list[dict]:
+    cfg = preset(preset_name)
+    for section, name, value in overrides or []:  # typed replacements, e.g. ("planner", "num_candidates", 32)
+        setattr(getattr(cfg, section), name, value)
+    t = cfg.train
+    episodes, num_demos = episodes or t.total_episodes, num_demos or t.num_demos
+    eval_every, eval_episodes = eval_every or t.eval_every, eval_episodes or t.eval_episodes
+    torch.manual_seed(seed)
+
+    # The task and the expert's observations (no actions, no rewards: imitation from observation).
+    env = make_env(t.env, obs=t.obs, seed=seed, **(t.env_kwargs or {}))
+    demo_env = make_env(t.env, obs=t.obs, seed=seed + 1_000_000, **(t.env_kwargs or {}))
+    demos = record_demos(demo_env, get_expert(t.env, demo_env), num_demos, seed=seed + 1_000_000, progress=False)
+    eval_env = make_env(t.env, obs=t.obs, seed=t.eval_seed, **(t.env_kwargs or {}))
+
+    # e_omega, f_psi, r_theta, Q_zeta (an ensemble) and pi_phi; observations normalised by the demos' statistics.
+    modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg.model, demos=demos)
+    losses = Losses(modules, cfg.loss)
+    # Algorithm 2: latent MPPI seeded by the policy's plans, scored by the learned reward and Q.
+    planner = LatentMPPIPlanner(modules, env.action_spec, cfg.planner)
+    # uniform random actions during the warm-up episodes
+    actor = WarmupSwitch(planner, env.action_spec, random_actions=t.warmup_episodes > 0)
+
+    H = cfg.model.horizon
+    steps_per_episode = int(getattr(env, "horizon", 0) or getattr(env.base_env, "horizon", 0) or 1000)
+    replay = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(episodes * steps_per_episode), batch_size=t.batch_size * H,
+        sampler=SliceSampler(slice_len=H, traj_key=TRAJ_IDS, strict_length=True),
+        transform=AttachExpertWindows(demos, H))  # each sample: [B * H] steps + H-step expert windows
+    collector = Collector(env, actor, frames_per_batch=steps_per_episode, total_frames=episodes * steps_per_episode)
+
+    history = []
+    for episode, data in enumerate(collector, start=1):
+        replay.extend(data)  # off-policy: every transition is kept (Table 4: unbounded replay)
+        actor.random_actions = episode < t.warmup_episodes  # applies from the next batch on
+        metrics = {}
+        if episode >= t.warmup_episodes:
+            for _ in range(updates_per_episode or max(1, round(t.utd * data.numel()))):
+                metrics = losses.update(replay.sample().reshape(-1, H))
+        if eval_every and (episode % eval_every == 0 or episode == episodes):
+            result = evaluate(eval_env, planner, cfg, eval_episodes)
+            history.append({"episode": episode, **result, **{k: v for k, v in metrics.items() if k.startswith("loss_")}})
+            print(f"episode {episode}: success {result['success_rate_any_step']:.2f} (any step), "
+                  f"{result['success_rate']:.2f} (last step)", flush=True)
+    collector.shutdown()
+    return history
+
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", default="point_mass", help="a preset of torchrl_mpail2.trainers.PRESETS")
+    p.add_argument("--episodes", type=int, help="default: the preset's train.total_episodes")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1)
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    main(args.preset, args.episodes, seed=args.seed)
