@@ -4,6 +4,7 @@ Usage::
 
     python -m torchrl_mpail2.demos record --env point_mass --obs state --episodes 20 --seed 0 --out demos/point_mass
     python -m torchrl_mpail2.demos record --env robosuite/Lift --episodes 10 --lift-speed 0.005 --out demos/lift_slow
+    python -m torchrl_mpail2.demos import robosuite_hdf5 demo.hdf5 --env robosuite/Lift --obs state --out demos/lift_teleop
     python -m torchrl_mpail2.demos info demos/point_mass
 """
 from __future__ import annotations
@@ -12,7 +13,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from torchrl_mpail2.data import load_demos, record_demos
+from torchrl_mpail2.data import DEMO_SOURCES, load_demo_source, load_demos, record_demos, save_demos
 from torchrl_mpail2.envs.factory import ENV_NAMES, make_env
 
 
@@ -44,6 +45,15 @@ def _record(args: argparse.Namespace) -> None:
     print(demos.summary())
 
 
+def _import(args: argparse.Namespace) -> None:
+    env = make_env(args.env, obs=args.obs)
+    demos = load_demo_source(f"{args.format}:{args.path}", env, progress=not args.no_progress)
+    demos.header["env_kwargs"] = {"obs": args.obs}
+    save_demos(demos, args.out, overwrite=args.overwrite)
+    print(f"wrote {args.out}")
+    print(demos.summary())
+
+
 def _info(args: argparse.Namespace) -> None:
     print(load_demos(args.path, verify=not args.no_verify).summary())
 
@@ -67,6 +77,16 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--overwrite", action="store_true")
     record.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     record.set_defaults(run=_record)
+
+    imports = commands.add_parser("import", help="convert another format's recordings (observations only)")
+    imports.add_argument("format", choices=sorted(DEMO_SOURCES))
+    imports.add_argument("path", help="the file to import (robosuite_hdf5: robosuite's demo.hdf5)")
+    imports.add_argument("--env", required=True, choices=ENV_NAMES, help="the env the recording is replayed through")
+    imports.add_argument("--obs", default="state", help="observation mode of the imported demos")
+    imports.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")
+    imports.add_argument("--overwrite", action="store_true")
+    imports.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    imports.set_defaults(run=_import)
 
     info = commands.add_parser("info", help="validate a demo directory and print its header summary")
     info.add_argument("path")

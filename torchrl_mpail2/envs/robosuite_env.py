@@ -239,6 +239,29 @@ class RobosuiteEnv(EnvBase):
             state["push_sign"] = np.array([sim_env.push_sign])
         return state
 
+    # -- replaying recorded simulator states (robosuite's teleoperation files) ---------------------------------
+
+    def load_model_xml(self, xml: str) -> None:
+        """Rebuilds the simulation from a recorded MJCF model (robosuite's ``model_file``: the recorded cube size)."""
+        self._sim_env.reset_from_xml_string(xml)
+        self._gripper.current_action = np.zeros_like(np.atleast_1d(self._gripper.current_action))
+        self._steps_taken = 0
+
+    def observe_state(self, flat_state: np.ndarray) -> TensorDict:
+        """This env's observation (and ``"success"``) of a flattened mujoco state (``sim.get_state().flatten()``)."""
+        sim = self._sim_env.sim
+        sim.set_state_from_flattened(np.asarray(flat_state, dtype=np.float64))
+        sim.forward()
+        return self._observation_td(self._sim_env._get_observations(force_update=True))
+
+    def apply_gripper_command(self, sim_action: np.ndarray) -> None:
+        """Advances the gripper controller's stored command as a step with robosuite action ``sim_action`` would
+        (what ``observe_gripper_command`` reports), without stepping the simulation."""
+        if self.gripper_mode == "binary":
+            self._gripper.current_action = np.array([-1.0, 1.0]) * np.sign(sim_action[-1])
+        else:
+            self._gripper.format_action(np.asarray(sim_action[-1:], dtype=np.float64))
+
     # -- EnvBase hooks -----------------------------------------------------------------------------------------
 
     def _set_seed(self, seed: int | None) -> None:

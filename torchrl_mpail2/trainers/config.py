@@ -31,7 +31,8 @@ class TrainConfig:
     seed: int = 0
     """Seed of torch, the environments and the demonstrations."""
     demos: str | None = None
-    """Path of a demonstration directory; None records scripted-expert demos into demos/ on first use."""
+    """A demonstration directory, or ``<format>:<path>`` for an importer (``data.DEMO_SOURCES``, e.g.
+    ``robosuite_hdf5:demo.hdf5``); None records scripted-expert demos into demos/ on first use."""
     num_demos: int = 10
     """Number of expert episodes recorded when ``demos`` is None."""
     expert_kwargs: dict | None = None

@@ -19,7 +19,8 @@ from torchrl.data.replay_buffers import SliceSampler
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demos, record_demos
+from torchrl_mpail2.data import (TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demo_source, load_demos,
+                                 record_demos)
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
@@ -111,7 +112,7 @@ class MPAIL2Trainer:
     def _load_or_record_demos(self) -> Demonstrations:
         t = self.cfg.train
         if t.demos is not None:
-            return load_demos(t.demos, self.env)
+            return load_demo_source(t.demos, self.env, progress=t.progress)
         path = default_demo_dir(self.cfg)
         if path.exists():
             return load_demos(path, self.env)

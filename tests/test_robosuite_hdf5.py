@@ -1,0 +1,128 @@
+"""robosuite's teleoperation recordings, written by robosuite's own DataCollectionWrapper and
+gather_demonstrations_as_hdf5, imported by replaying their states through this library's env."""
+import json
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from torchrl_mpail2.data import load_demo_source, save_demos
+from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
+from torchrl_mpail2.experts import get_expert
+
+pytest.importorskip("robosuite")
+
+
+def _base(env) -> RobosuiteEnv:
+    while not isinstance(env, RobosuiteEnv):
+        env = env.base_env
+    return env
+
+
+def _record_with_robosuites_writer(tmp_path, episodes=2, **env_kwargs):
+    """Drives the scripted expert through robosuite's DataCollectionWrapper (as a teleoperator would), then
+    gathers the raw episodes into demo.hdf5 with robosuite's own script; returns the file and the live rollouts."""
+    from robosuite.scripts.collect_human_demonstrations import gather_demonstrations_as_hdf5
+    from robosuite.wrappers import DataCollectionWrapper
+
+    env = make_env("robosuite/Lift", seed=3, **env_kwargs)
+    base = _base(env)
+    raw = tmp_path / "raw"
+    base._sim_env = DataCollectionWrapper(base._sim_env, str(raw))
+    expert = get_expert("robosuite/Lift", env)
+    rollouts = []
+    for i in range(episodes):
+        env.set_seed(100 + i)
+        if hasattr(expert, "reset"):
+            expert.reset()
+        rollouts.append(env.rollout(100, expert, break_when_any_done=True))
+    base._sim_env.close()  # flushes the last episode
+    out = tmp_path / "hdf5"
+    out.mkdir()
+    gather_demonstrations_as_hdf5(str(raw), str(out), json.dumps({"env_name": "Lift", "robots": "Panda"}))
+    return out / "demo.hdf5", rollouts
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    return _record_with_robosuites_writer(tmp_path_factory.mktemp("rs"))
+
+
+def test_replayed_states_give_exactly_the_observations_seen_live(recording):
+    path, rollouts = recording
+    with h5py.File(path) as f:
+        assert len(f["data"].keys()) == 2  # robosuite keeps the successful episodes only
+    demos = import_robosuite_hdf5(path, make_env("robosuite/Lift"), progress=False)
+    assert demos.env_id == "robosuite/Lift" and demos.num_episodes == 2
+    assert demos.observation_keys == ["proprio", "object"]
+    assert demos.header["source"]["format"] == "robosuite_hdf5"
+    assert set(demos.header["source"]["dropped"]) == {"actions", "rewards"}
+    # robosuite gathers its episode folders in directory order: pair them with the live rollouts by first state
+    live_by_start = {round(float(live["object"][0, 0]), 5): live for live in rollouts}
+    for episode in range(demos.num_episodes):
+        got = demos.episode(episode)
+        live = live_by_start[round(float(got["object"][0, 0]), 5)]
+        # states[t] is the state before action t: the live observations of steps 0..T-1. Replay recomputes the
+        # kinematics of each state (mj_forward); live, robosuite's step ends on mj_step, whose positions were
+        # computed before its integration, i.e. one 2 ms physics substep earlier: equal at reset, close after.
+        for key in ("proprio", "object"):
+            np.testing.assert_allclose(got[key][0].numpy(), live[key][0].numpy(), atol=1e-6, err_msg=key)
+            np.testing.assert_allclose(got[key].numpy(), live[key].numpy(), atol=2e-3, err_msg=key)
+
+
+def test_the_gripper_command_is_advanced_from_the_recorded_actions(tmp_path):
+    path, rollouts = _record_with_robosuites_writer(tmp_path, episodes=1, observe_gripper_command=True)
+    demos = import_robosuite_hdf5(path, make_env("robosuite/Lift", observe_gripper_command=True), progress=False)
+    got = demos.episode(0)["proprio"]
+    assert got.shape[-1] == 27
+    np.testing.assert_allclose(got[:, -1].numpy(), rollouts[0]["proprio"][:, -1].numpy(), atol=1e-6)
+    assert float(got[:, -1].max()) > 0.5  # the expert did close the gripper
+
+
+def test_camera_observations_are_rendered_from_the_replayed_states(recording):
+    path, _ = recording
+    demos = import_robosuite_hdf5(path, make_env("robosuite/Lift", obs="external_pixels"), max_demos=1,
+                                  progress=False)
+    image = demos.episode(0)["external_image"]
+    assert image.dtype == torch.uint8 and tuple(image.shape[1:]) == (3, 64, 64)
+    assert image.float().std() > 1.0  # a scene, not a blank frame
+
+
+def test_the_source_syntax_saves_and_loads_and_bad_files_are_named(recording, tmp_path):
+    path, _ = recording
+    env = make_env("robosuite/Lift")
+    demos = load_demo_source(f"robosuite_hdf5:{path}", env)
+    save_demos(demos, tmp_path / "saved")
+    again = load_demo_source(str(tmp_path / "saved"), env)
+    assert again.header["source"]["path"] == str(path.resolve())
+    torch.testing.assert_close(again.observations["object"], demos.observations["object"])
+    with pytest.raises(ValueError, match="recorded on robosuite task 'Lift', the env is 'Push'"):
+        import_robosuite_hdf5(path, make_env("robosuite/Push"), progress=False)
+    with pytest.raises(TypeError, match="robosuite env of this library"):
+        import_robosuite_hdf5(path, make_env("point_mass"), progress=False)
+    with pytest.raises(FileNotFoundError, match="no robosuite recording"):
+        import_robosuite_hdf5(tmp_path / "missing.hdf5", env)
+    broken = tmp_path / "broken.hdf5"
+    with h5py.File(broken, "w") as f:
+        f.create_group("data").attrs["env"] = "Lift"
+        f["data"].create_group("demo_1").create_dataset("states", data=np.zeros((3, 5)))
+    with pytest.raises(ValueError, match="demo_1 has no 'actions' dataset"):
+        import_robosuite_hdf5(broken, env, progress=False)
+    with pytest.raises(ValueError, match="unknown demonstration source prefix 'robomimic'"):
+        load_demo_source(f"robomimic:{path}", env)
+
+
+def test_the_command_line_imports_into_a_demo_folder(recording, tmp_path, capsys):
+    from torchrl_mpail2.demos import main
+
+    path, _ = recording
+    out = tmp_path / "lift_teleop"
+    assert main(["import", "robosuite_hdf5", str(path), "--env", "robosuite/Lift", "--out", str(out),
+                 "--no-progress"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    header = json.loads((out / "header.json").read_text())
+    assert header["env_id"] == "robosuite/Lift" and header["source"]["format"] == "robosuite_hdf5"
+    assert len(header["episodes"]) == 2

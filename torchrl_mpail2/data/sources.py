@@ -1,0 +1,34 @@
+"""One entry point for demonstrations: a folder of this library's format, or ``<format>:<path>`` for an importer."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos
+from torchrl_mpail2.data.demos import Demonstrations
+from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
+
+__all__ = ["DEMO_SOURCES", "load_demo_source"]
+
+#: Importer per source prefix; each takes ``(path, env, progress=...)`` and returns observation-only demos.
+DEMO_SOURCES = {"robosuite_hdf5": import_robosuite_hdf5}
+_PREFIX = re.compile(r"([a-z][a-z0-9_]*):(.+)")
+
+
+def load_demo_source(source: str | Path, env=None, *, progress: bool = False) -> Demonstrations:
+    """Demonstrations from ``source``: a demo folder (:func:`load_demos`), or ``<format>:<path>`` with a format
+    of :data:`DEMO_SOURCES` (e.g. ``robosuite_hdf5:demo.hdf5``), imported through ``env`` and checked against its
+    observation spec. This is what ``train.demos=...`` accepts."""
+    text = str(source)
+    match = _PREFIX.fullmatch(text)
+    if match is None or Path(text).exists():
+        return load_demos(source, env)
+    prefix, path = match.groups()
+    if prefix not in DEMO_SOURCES:
+        raise ValueError(f"unknown demonstration source prefix {prefix!r} in {text!r}; known: {sorted(DEMO_SOURCES)} "
+                         "(or a demo folder path)")
+    if env is None:
+        raise ValueError(f"importing {text!r} needs the env to replay or check the observations")
+    demos = DEMO_SOURCES[prefix](path, env, progress=progress)
+    check_observation_spec(demos, env)
+    return demos
