@@ -105,6 +105,12 @@ def test_the_source_syntax_saves_and_loads_and_bad_files_are_named(recording, tm
         import_robosuite_hdf5(path, make_env("point_mass"), progress=False)
     with pytest.raises(FileNotFoundError, match="no robosuite recording"):
         import_robosuite_hdf5(tmp_path / "missing.hdf5", env)
+    other_rate = tmp_path / "other_rate.hdf5"
+    other_rate.write_bytes(path.read_bytes())
+    with h5py.File(other_rate, "r+") as f:
+        f["data"].attrs["env_info"] = json.dumps({"env_name": "Lift", "control_freq": 10})
+    with pytest.raises(ValueError, match="recorded at 10 Hz"):
+        import_robosuite_hdf5(other_rate, env, progress=False)
     broken = tmp_path / "broken.hdf5"
     with h5py.File(broken, "w") as f:
         f.create_group("data").attrs["env"] = "Lift"
