@@ -15,12 +15,12 @@ SHORT_RUN = ["--preset", "point_mass", "train.progress=false", "train.num_demos=
 EXPECTED_TAGS = ("losses/loss_dynamics", "planner/elite_ess", "eval/environment/success_rate_any_step")
 
 
-def _train(tmp_path: Path, logger: str) -> Path:
+def _train(tmp_path: Path, logger: str, *extra: str) -> Path:
     run_dir = tmp_path / f"run_{logger}"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "WANDB_MODE": "offline", "WANDB_SILENT": "true",
            "WANDB_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
     subprocess.run([sys.executable, "-m", "torchrl_mpail2.train", *SHORT_RUN, f"train.logger={logger}",
-                    f"train.run_dir={run_dir}"], cwd=tmp_path, env=env, check=True, capture_output=True, timeout=300)
+                    f"train.run_dir={run_dir}", *extra], cwd=tmp_path, env=env, check=True, capture_output=True, timeout=300)
     return run_dir
 
 
@@ -41,10 +41,12 @@ def test_tensorboard_logger_writes_the_grouped_scalars(tmp_path):
 
 def test_wandb_offline_logger_writes_a_run_file_with_the_metrics(tmp_path):
     pytest.importorskip("wandb")
-    run_dir = _train(tmp_path, "wandb")
+    run_dir = _train(tmp_path, "wandb", "train.video=true")
     runs = list((run_dir / "wandb").glob("offline-run-*/run-*.wandb"))
     assert len(runs) == 1, list((run_dir / "wandb").rglob("*"))
     data = runs[0].read_bytes()
     for tag in EXPECTED_TAGS:
         assert tag.encode() in data, tag
     assert b"model" in data and b"latent_dim" in data  # the run's config travels with it
+    assert b"eval/video" in data  # the evaluation video as wandb media
+    assert list((run_dir / "videos").glob("eval_000002_0.mp4"))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -235,3 +236,16 @@ def test_human_like_lift_expert_varies_per_episode_and_is_reproducible(state_env
     b = LiftExpert(env, human_like=True, seed=3)
     assert torch.equal(first_actions(b, 5), first)  # the same seed replays the same styles
     assert first.abs().max() <= 1.0
+
+
+def test_render_draws_the_scene_in_state_mode_too():
+    from torchrl_mpail2.envs import make_env
+
+    env = make_env("robosuite/Lift", seed=0)
+    env.reset()
+    frame = env.render(size=96)
+    assert frame.shape == (96, 96, 3) and frame.dtype == np.uint8
+    assert frame.std() > 10  # a scene: table, robot, cube
+    # the cube (red) lies below the image centre row: the frame is upright
+    red = np.argwhere((frame[..., 0] > 150) & (frame[..., 1] < 80) & (frame[..., 2] < 80))
+    assert len(red) > 0 and red[:, 0].mean() > 96 / 3

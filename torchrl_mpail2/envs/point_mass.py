@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
+import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
@@ -91,6 +92,19 @@ class PointMassEnv(EnvBase):
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()).item())
         self.set_seed(seed)
+
+    def render(self, size: int = 128) -> np.ndarray:
+        """An RGB frame ``[size, size, 3]`` uint8 of the arena (batch size ``[]`` only): the goal disc in green,
+        the point in blue."""
+        if self.batch_size:
+            raise ValueError(f"PointMassEnv.render draws one point mass; this env has batch size {list(self.batch_size)}")
+        grid = (np.arange(size) + 0.5) / size * 2 * POSITION_LIMIT - POSITION_LIMIT  # pixel centres in env units
+        x, y = np.meshgrid(grid, -grid)  # image rows go down, y goes up
+        frame = np.full((size, size, 3), 255, dtype=np.uint8)
+        frame[x**2 + y**2 <= SUCCESS_RADIUS**2] = (120, 200, 120)
+        px, py = self._position.cpu().double().numpy()
+        frame[(x - px) ** 2 + (y - py) ** 2 <= (2.5 * POSITION_LIMIT / size * 2) ** 2] = (40, 60, 220)
+        return frame
 
     def _make_specs(self) -> None:
         batch = self.batch_size

@@ -58,6 +58,8 @@ IMAGE_SIZE = 64
 EXTERNAL_CAMERA = "agentview"
 WRIST_CAMERA = "robot0_eye_in_hand"
 MAX_EEF_DELTA = 0.05  # metres per unit action: robosuite's OSC_POSITION output_max
+#: Side of the frames of :meth:`RobosuiteEnv.render` (evaluation videos), pixels.
+RENDER_SIZE = 256
 WORKSPACE_LOW = np.array([-0.25, -0.25, 0.81])
 WORKSPACE_HIGH = np.array([0.25, 0.25, 1.15])
 GRIPPER_CLOSED = 1.0
@@ -238,6 +240,18 @@ class RobosuiteEnv(EnvBase):
             state["line_y"] = np.array([sim_env.line_y])
             state["push_sign"] = np.array([sim_env.push_sign])
         return state
+
+    def render(self, size: int = RENDER_SIZE, camera: str = EXTERNAL_CAMERA) -> np.ndarray:
+        """An upright RGB frame ``[size, size, 3]`` uint8 of the current scene from ``camera`` (default: the
+        external ``agentview``). The offscreen renderer is created on first use, in state mode too."""
+        sim = self._sim_env.sim
+        if sim._render_context_offscreen is None:
+            from robosuite.utils.binding_utils import MjRenderContextOffscreen
+
+            MjRenderContextOffscreen(sim, device_id=-1)  # registers itself with the sim
+            sim._render_context_offscreen.vopt.geomgroup[0] = 0  # collision meshes hidden,
+            sim._render_context_offscreen.vopt.geomgroup[1] = 1  # visual meshes shown, as robosuite's cameras
+        return np.ascontiguousarray(sim.render(width=size, height=size, camera_name=camera)[::-1])
 
     # -- replaying recorded simulator states (robosuite's teleoperation files) ---------------------------------
 

@@ -54,6 +54,11 @@ class TrainConfig:
     """Evaluate every this many episodes (0: never)."""
     eval_episodes: int = 20
     """Episodes per evaluation, deterministic planner (50 for final numbers, as in the paper's real-world tables)."""
+    video: bool = False
+    """Record the first ``video_episodes`` episodes of each evaluation to ``videos/*.mp4`` in the run folder (and to
+    wandb where it is the logger); needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
+    video_episodes: int = 1
+    """Evaluation episodes recorded per evaluation when ``video`` is on."""
     eval_seed: int = 2_000_000
     """Seed of the first evaluation episode: episode ``i`` starts from env seed ``eval_seed + i`` and draws its
     planner noise from a generator seeded the same way, so every evaluation of every run (any training seed)
@@ -89,7 +94,7 @@ class TrainConfig:
         "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
         "eval_episodes": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
         "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,
-        "eval_seed": NON_NEGATIVE, "demo_steps_after_success": NON_NEGATIVE,
+        "eval_seed": NON_NEGATIVE, "video_episodes": AT_LEAST_ONE, "demo_steps_after_success": NON_NEGATIVE,
     }
 
     def __post_init__(self) -> None:

@@ -7,6 +7,7 @@ episodes. Success at any step of an episode (the paper's definition, Appendix "M
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
@@ -33,7 +34,8 @@ def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
 
 
 @torch.no_grad()
-def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None) -> list[dict[str, float]]:
+def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, videos: list | None = None,
+                      video_episodes: int = 0) -> list[dict[str, float]]:
     """Plays one deterministic episode per seed with ``actor``; returns each :func:`episode_outcome`.
 
     Args:
@@ -42,6 +44,10 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None) -> li
         seeds (list[int]): one env seed per episode (:func:`evaluation_seeds`).
         planner (LatentMPPIPlanner, optional): the planner inside ``actor``, if any: its warm start is cleared and
             its noise seeded per episode; its warm start and generator are restored afterwards.
+
+    Keyword Args:
+        videos (list, optional): receives the frames ``[T + 1, H, W, 3]`` uint8 (``env.render()`` after the reset
+            and after each step) of the first ``video_episodes`` episodes.
     """
     saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
     device = next(iter(planner.components.parameters())).device if planner is not None else None
@@ -53,7 +59,16 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None) -> li
                 if planner is not None:
                     planner.reset()
                     planner.generator = torch.Generator(device=device).manual_seed(seed)
-                outcomes.append(episode_outcome(env.rollout(MAX_EVAL_STEPS, actor, break_when_any_done=True)))
+                if videos is not None and len(outcomes) < video_episodes:
+                    start = env.reset()
+                    frames = [env.render()]
+                    episode = env.rollout(MAX_EVAL_STEPS, actor, break_when_any_done=True, auto_reset=False,
+                                          tensordict=start, callback=lambda env_, td: frames.append(env_.render()))
+                    frames.append(env.render())  # torchrl calls the callback on every step but the last
+                    videos.append(np.stack(frames))
+                else:
+                    episode = env.rollout(MAX_EVAL_STEPS, actor, break_when_any_done=True)
+                outcomes.append(episode_outcome(episode))
     finally:
         if planner is not None:
             planner.set_extra_state(saved[0])

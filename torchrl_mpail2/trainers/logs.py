@@ -65,6 +65,13 @@ class RunLogger:
             f.write(json.dumps(record) + "\n")
         self._scalars(record, record["episode"], prefix="eval/")
 
+    def log_video(self, path: Path, step: int) -> None:
+        """Sends an evaluation video (an mp4 in the run folder) to the logger, where it takes media (wandb)."""
+        if self.logger is not None and type(self.logger).__name__ == "WandbLogger":
+            import wandb
+
+            self.logger.experiment.log({"eval/video": wandb.Video(str(path), format="mp4")}, step=step)
+
     def success_rate(self, window: int) -> float:
         recent = self.successes[-window:]
         return sum(recent) / len(recent) if recent else 0.0

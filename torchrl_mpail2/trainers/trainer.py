@@ -28,6 +28,7 @@ from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overri
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.run_folder import RunFolder
+from torchrl_mpail2.trainers.videos import check_can_film, write_videos
 
 log = logging.getLogger(__name__)
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
@@ -93,6 +94,8 @@ class MPAIL2Trainer:
         self.env_fn = env_fn
         self.run_dir = Path(t.run_dir)
         self.env = env_fn()
+        if t.video:
+            check_can_film(self.env)
         self.demos = demos if demos is not None else self._load_or_record_demos()
         if agent is None:
             agent = MPAIL2Agent(self.env.observation_spec, self.env.action_spec, cfg.model, cfg.loss, cfg.planner,
@@ -186,9 +189,15 @@ class MPAIL2Trainer:
         ``success_rate_any_step`` (success at any step of the episode, the paper's definition) is the headline
         figure; ``success_rate`` counts episodes whose last step is a success.
         """
-        env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=self.cfg.train.eval_seed)
+        t = self.cfg.train
+        env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=t.eval_seed)
+        videos = [] if t.video else None
         summary = summarize_outcomes(evaluate_episodes(env, self.agent.policy, self.evaluation_seeds(episodes),
-                                                       self.agent.planner))
+                                                       self.agent.planner, videos=videos,
+                                                       video_episodes=t.video_episodes))
+        if videos:
+            summary["videos"] = [str(p) for p in write_videos(videos, self.run_dir / "videos",
+                                                              f"eval_{self.counters['episodes']:06d}")]
         return {**summary, "normalized_return": self.normalized_return(summary["return"])}
 
     def normalized_return(self, task_return: float) -> float:
@@ -381,6 +390,8 @@ class MPAIL2Trainer:
         evaluation = self.evaluate()
         evaluation["episode"] = self.counters["episodes"]
         self.logger.log_eval(evaluation)
+        for path in evaluation.get("videos", []):
+            self.logger.log_video(Path(path), self.counters["episodes"])
         score = (evaluation["success_rate_any_step"], evaluation["success_rate"])
         if score > self.best_eval:
             self.best_eval = score

@@ -1,0 +1,55 @@
+"""Evaluation videos: frames from env.render(), written as mp4, without changing what is evaluated."""
+import imageio
+import numpy as np
+import pytest
+
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+
+
+def _cfg(*overrides):
+    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.num_demos=2",
+                                                  "train.total_episodes=2", "train.warmup_episodes=1",
+                                                  "train.utd=0.05", "train.eval_every=2", "train.eval_episodes=3",
+                                                  "planner.num_candidates=32", "planner.num_elites=4", *overrides])
+
+
+def test_point_mass_frames_show_the_point_where_it_is():
+    env = make_env("point_mass", seed=0)
+    td = env.reset()
+    frame = env.render()
+    assert frame.shape == (128, 128, 3) and frame.dtype == np.uint8
+    x, y = td["observation"][:2].tolist()
+    blue = np.argwhere((frame == (40, 60, 220)).all(-1)).mean(0)  # row, column of the point
+    assert abs(blue[1] - (x + 1.5) / 3 * 128) < 2 and abs(blue[0] - (1.5 - y) / 3 * 128) < 2
+
+
+def test_train_video_writes_the_evaluation_episodes_and_evaluates_the_same(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    filmed = MPAIL2Trainer(_cfg("train.video=true", "train.video_episodes=2"), run_dir=tmp_path / "filmed")
+    filmed.train()
+    videos = sorted((tmp_path / "filmed" / "videos").glob("*.mp4"))
+    assert [p.name for p in videos] == ["eval_000002_0.mp4", "eval_000002_1.mp4"]
+    reader = imageio.get_reader(videos[0])
+    assert reader.count_frames() == 51  # the reset and 50 steps
+    assert reader.get_meta_data()["size"] == (128, 128)
+    # the same weights scored with and without filming: filming changes nothing of the episodes
+    with_video = filmed.evaluate()
+    filmed.cfg.train.video = False
+    without = filmed.evaluate()
+    assert {k: v for k, v in with_video.items() if k != "videos"} == without
+
+
+def test_train_video_on_an_env_without_render_is_refused_by_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env = make_env("point_mass")
+
+    class NoRender:
+        def __getattr__(self, name):
+            if name == "render":
+                raise AttributeError(name)
+            return getattr(env, name)
+
+    with pytest.raises(ValueError, match="train.video=true needs an env with render"):
+        MPAIL2Trainer(_cfg("train.video=true"), run_dir=tmp_path / "run", env_fn=lambda seed=0: NoRender())
+    assert not (tmp_path / "run").exists()
