@@ -65,11 +65,15 @@ def test_gym_example_records_demonstrations_from_the_committed_expert_and_caches
     assert first["env_steps"] >= 2
 
 
-def _minimal_loop():
-    spec = importlib.util.spec_from_file_location("minimal_loop", ROOT / "examples" / "minimal_loop.py")
+def _example(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _minimal_loop():
+    return _example("minimal_loop")
 
 
 def test_minimal_loop_runs_with_tiny_settings():
@@ -101,10 +105,7 @@ def test_minimal_loop_learns_the_point_mass():
 
 
 def _algorithm1():
-    spec = importlib.util.spec_from_file_location("algorithm1", ROOT / "examples" / "algorithm1.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _example("algorithm1")
 
 
 def test_algorithm1_spelled_out_updates_every_weight_exactly_like_the_updater():
