@@ -132,3 +132,15 @@ def test_the_command_line_imports_into_a_demo_folder(recording, tmp_path, capsys
     header = json.loads((out / "header.json").read_text())
     assert header["env_id"] == "robosuite/Lift" and header["source"]["format"] == "robosuite_hdf5"
     assert len(header["episodes"]) == 2
+
+
+def test_a_saved_config_keeps_the_source_prefix_with_an_absolute_path(tmp_path, monkeypatch):
+    from torchrl_mpail2.trainers import ExperimentConfig
+    from torchrl_mpail2.trainers.config import resolve_paths
+
+    monkeypatch.chdir(tmp_path)
+    cfg = ExperimentConfig()
+    cfg.train.demos = "robosuite_hdf5:teleop/demo.hdf5"
+    assert resolve_paths(cfg, "run").train.demos == f"robosuite_hdf5:{tmp_path / 'teleop' / 'demo.hdf5'}"
+    cfg.train.demos = "demos/lift"
+    assert resolve_paths(cfg, "run").train.demos == str(tmp_path / "demos" / "lift")

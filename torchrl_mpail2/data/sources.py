@@ -8,11 +8,27 @@ from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos
 from torchrl_mpail2.data.demos import Demonstrations
 from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
 
-__all__ = ["DEMO_SOURCES", "load_demo_source"]
+__all__ = ["DEMO_SOURCES", "load_demo_source", "resolve_demo_source"]
 
 #: Importer per source prefix; each takes ``(path, env, progress=...)`` and returns observation-only demos.
 DEMO_SOURCES = {"robosuite_hdf5": import_robosuite_hdf5}
 _PREFIX = re.compile(r"([a-z][a-z0-9_]*):(.+)")
+
+
+def _split(source: str | Path) -> tuple[str | None, str]:
+    """``(prefix, path)`` of ``<format>:<path>``, or ``(None, source)`` for a plain path."""
+    text = str(source)
+    match = _PREFIX.fullmatch(text)
+    if match is None or Path(text).exists():
+        return None, text
+    return match.group(1), match.group(2)
+
+
+def resolve_demo_source(source: str | Path) -> str:
+    """``source`` with its path made absolute (the prefix kept), so that a saved config loads from any folder."""
+    prefix, path = _split(source)
+    resolved = str(Path(path).resolve())
+    return resolved if prefix is None else f"{prefix}:{resolved}"
 
 
 def load_demo_source(source: str | Path, env=None, *, progress: bool = False) -> Demonstrations:
@@ -20,10 +36,9 @@ def load_demo_source(source: str | Path, env=None, *, progress: bool = False) ->
     of :data:`DEMO_SOURCES` (e.g. ``robosuite_hdf5:demo.hdf5``), imported through ``env`` and checked against its
     observation spec. This is what ``train.demos=...`` accepts."""
     text = str(source)
-    match = _PREFIX.fullmatch(text)
-    if match is None or Path(text).exists():
+    prefix, path = _split(source)
+    if prefix is None:
         return load_demos(source, env)
-    prefix, path = match.groups()
     if prefix not in DEMO_SOURCES:
         raise ValueError(f"unknown demonstration source prefix {prefix!r} in {text!r}; known: {sorted(DEMO_SOURCES)} "
                          "(or a demo folder path)")

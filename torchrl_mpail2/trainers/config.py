@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
+from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
     check_fields, field_kind,
@@ -242,5 +243,5 @@ def resolve_paths(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfi
     resumes from any working directory."""
     demos = cfg.train.demos
     train = dataclasses.replace(cfg.train, run_dir=str(Path(run_dir).resolve()),
-                                demos=None if demos is None else str(Path(demos).resolve()))
+                                demos=None if demos is None else resolve_demo_source(demos))
     return dataclasses.replace(cfg, train=train)
