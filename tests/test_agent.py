@@ -119,6 +119,11 @@ def test_the_trainer_trains_the_agent_it_is_given(tmp_path, monkeypatch):
     assert trainer.agent is agent
     summary = trainer.train()
     assert summary["updates"] > 0
+    # where the wall time went, by stage (the whole-loop speed benchmark reads this)
+    split = summary["time_split_s"]
+    assert {"act", "env", "update", "log", "checkpoint", "total"} <= set(split), split
+    assert all(v >= 0 for v in split.values()) and split["act"] > 0 and split["update"] > 0
+    assert sum(v for k, v in split.items() if k != "total") <= split["total"]
     assert any(not torch.equal(v, agent.modules.state_dict()[k]) for k, v in before.items())
     saved = json.loads((tmp_path / "run" / "config.json").read_text())
     assert saved["model"]["latent_dim"] == cfg.model.latent_dim

@@ -68,11 +68,13 @@ class WarmupSwitch(TensorDictModuleBase):
         self._seconds = 0.0
 
     def pop_stats(self) -> dict[str, float]:
-        """Means of the planner statistics and ``actions_per_s`` since the last call (empty if nothing acted)."""
+        """Means of the planner statistics, ``actions_per_s`` and the seconds spent acting (``act_s``) since the
+        last call (empty if nothing acted)."""
         out = {}
         if self._calls:
             out = {name: float(total) / self._calls for name, total in self._sums.items()}
             out["actions_per_s"] = self._actions / max(self._seconds, 1e-9)
+            out["act_s"] = self._seconds
         self._sums, self._calls, self._actions, self._seconds = {}, 0, 0, 0.0
         return out
 

@@ -12,7 +12,7 @@ GROUPS = {
     "q_": "value", "learned_reward_mean": "value", "alpha": "policy", "entropy": "policy", "imagined_return": "policy",
     "policy_influence": "planner", "elite_return": "planner", "plan_std": "planner", "elite_ess": "planner",
     "success": "environment", "task_return": "environment", "normalized_return": "environment", "length": "environment",
-    "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed",
+    "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed", "act_s": "speed", "collect_s": "speed",
     "dynamics_error_last": "losses", "nonfinite_skips": "losses",
 }
 

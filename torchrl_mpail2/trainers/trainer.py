@@ -108,6 +108,8 @@ class MPAIL2Trainer:
         self.counters = {"episodes": 0, "env_steps": 0, "updates": 0, "warnings": 0}
         self.best_eval = (-math.inf, -math.inf)  # (any-step, last-step) success of the best evaluation
         self._last_written = None  # episode count of the newest checkpoints/last
+        #: wall seconds of this training session by stage: act (planning), env, update, evaluate, checkpoint, log
+        self.time_split: dict[str, float] = {}
         (self.run_dir / "config.json").write_text(cfg.to_json())
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
@@ -350,19 +352,28 @@ class MPAIL2Trainer:
                 steps = episode.shape[0]
                 record = self._episode_record(episode)
                 record["env_steps_per_s"] = steps / collect_s
+                record["collect_s"] = collect_s
+                self._time("act", record.get("act_s", 0.0))
+                self._time("env", collect_s - record.get("act_s", 0.0))
                 self.counters["episodes"] += 1
                 self.counters["env_steps"] += steps
                 if self.counters["episodes"] >= t.warmup_episodes:
+                    tick = time.perf_counter()
                     record.update(self.update(max(1, round(t.utd * steps))))
+                    self._time("update", time.perf_counter() - tick)
                 record.update(self.counters)
+                tick = time.perf_counter()
                 self.logger.log_episode(record)
+                self._time("log", time.perf_counter() - tick)
                 done = self.counters["episodes"]
                 if t.eval_every and (done % t.eval_every == 0 or done == t.total_episodes):
                     evaluation = self._evaluate_and_checkpoint()
+                tick = time.perf_counter()
                 if t.checkpoint_every and done % t.checkpoint_every == 0:
                     self.save(f"episode_{done:06d}")
                 if t.last_every and done % t.last_every == 0 and self._last_written != done:
                     self.save("last", with_replay=True)  # bounds what a crash loses to last_every episodes
+                self._time("checkpoint", time.perf_counter() - tick)
                 bar.update(1)
                 bar.set_postfix(success=f"{self.logger.success_rate(t.success_window):.2f}",
                                 eval="-" if evaluation is None else f"{evaluation['success_rate_any_step']:.2f}",
@@ -373,8 +384,10 @@ class MPAIL2Trainer:
                 state["collector"].shutdown()
         if t.eval_every and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
             evaluation = self._evaluate_and_checkpoint()  # stopped early: evaluate where it stopped
+        tick = time.perf_counter()
         if self._last_written != self.counters["episodes"]:
             self.save("last", with_replay=True)
+        self._time("checkpoint", time.perf_counter() - tick)
         from torchrl_mpail2.trainers.plots import plot_run
 
         plot_run(self.run_dir, t.success_window)
@@ -382,21 +395,29 @@ class MPAIL2Trainer:
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
                    "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
                    "best_eval_success": self.best_eval[1] if self.best_eval[0] > -math.inf else None,
-                   "last_eval": evaluation}
+                   "last_eval": evaluation,
+                   "time_split_s": {**self.time_split, "total": time.perf_counter() - start}}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         return summary
 
+    def _time(self, stage: str, seconds: float) -> None:
+        self.time_split[stage] = self.time_split.get(stage, 0.0) + seconds
+
     def _evaluate_and_checkpoint(self) -> dict:
+        tick = time.perf_counter()
         evaluation = self.evaluate()
+        self._time("evaluate", time.perf_counter() - tick)
         evaluation["episode"] = self.counters["episodes"]
         self.logger.log_eval(evaluation)
         for path in evaluation.get("videos", []):
             self.logger.log_video(Path(path), self.counters["episodes"])
         score = (evaluation["success_rate_any_step"], evaluation["success_rate"])
+        tick = time.perf_counter()
         if score > self.best_eval:
             self.best_eval = score
             self.save("best")
         self.save("last", with_replay=True)
+        self._time("checkpoint", time.perf_counter() - tick)
         return evaluation
 
     def _episode_record(self, episode: TensorDict) -> dict:
