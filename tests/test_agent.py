@@ -142,3 +142,23 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
     row = result["checkpoints"][0]
     assert row["success_any_step_per_episode"] == logged[-1]["success_any_step_per_episode"]
     assert row["success_rate"] == logged[-1]["success_rate"]
+
+
+def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(tmp_path, monkeypatch):
+    """``benchmarks/device_smoke.py`` is the GPU check; its CPU path keeps it from rotting between GPU sessions."""
+    from torchrl_mpail2.config import ConfigError
+
+    with pytest.raises(ConfigError, match="TrainConfig.device: 'gpu0' is not a torch device"):
+        apply_overrides(preset("point_mass"), ["train.device=gpu0"])
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="sees no CUDA device"):
+            apply_overrides(preset("point_mass"), ["train.device=cuda"])
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("device_smoke", ROOT / "benchmarks" / "device_smoke.py")
+    smoke = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(smoke)
+    cpu = torch.device("cpu")
+    same = smoke.agreement(cpu, "state", PlannerConfig(num_candidates=32, num_elites=4, iterations=2), batch=8)
+    assert same["first_action_distance"] == 0.0 and same["losses_cpu"] == same["losses_device"]
+    trained = smoke.train_two_episodes(cpu)
+    assert trained["episodes"] == 2 and trained["updates"] > 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import torch
 from tensordict import TensorDictBase
 
 from torchrl_mpail2.agents.model_free_update import ModelFreeUpdater
@@ -47,6 +48,8 @@ class MPAIL2Agent:
             their keys.
         observation_keys (list[str], optional): the observation keys to encode (default: the demos' keys, else
             every observation of the spec).
+        device (torch.device or str): where the networks live; the losses, optimisers and planner follow them, and
+            inputs are expected there (default ``"cpu"``).
 
     Attributes:
         modules, loss, updater: the networks, the composite loss and the per-stage updater.
@@ -68,7 +71,8 @@ class MPAIL2Agent:
     def __init__(self, observation_spec, action_spec, model: ModelConfig | None = None,
                  loss: LossConfig | None = None, planner: PlannerConfig | None = None, *, ablation: str = "none",
                  switches: AgentSwitches | None = None, update_precision: str = "float32",
-                 demos: Demonstrations | None = None, observation_keys: list[str] | None = None):
+                 demos: Demonstrations | None = None, observation_keys: list[str] | None = None,
+                 device: torch.device | str = "cpu"):
         self.switches = switches or switches_for(ablation)
         if update_precision not in UPDATE_PRECISIONS:
             raise ValueError(f"unknown update_precision {update_precision!r}; choose from {UPDATE_PRECISIONS}")
@@ -80,7 +84,8 @@ class MPAIL2Agent:
             model = dataclasses.replace(model, horizon=1)
             if update_precision != "float32":
                 raise ValueError(f"update_precision={update_precision!r} applies to the model-based updater only")
-        self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys, demos=demos)
+        self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
+                                           demos=demos).to(device)
         if self.switches.world_model:
             self.loss = MPAIL2Loss(self.modules, loss)
             self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=update_precision == "bf16_stop_gradient",
@@ -118,7 +123,8 @@ class MPAIL2Agent:
             self.planner.set_extra_state(state["planner"])
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, env=None, *, with_optimizers: bool = False) -> "MPAIL2Agent":
+    def from_checkpoint(cls, path: str | Path, env=None, *, with_optimizers: bool = False,
+                        device: torch.device | str = "cpu") -> "MPAIL2Agent":
         """The agent of a training checkpoint (``RUN/checkpoints/best``, ``.../last`` or ``.../episode_N``).
 
         Args:
@@ -128,6 +134,7 @@ class MPAIL2Agent:
 
         Keyword Args:
             with_optimizers (bool): restore the optimisers too (to go on training). Defaults to False.
+            device (torch.device or str): where to load the networks (default ``"cpu"``, wherever they were saved).
 
         Raises:
             CheckpointError: the checkpoint is missing or damaged (the message names the file).
@@ -148,7 +155,7 @@ class MPAIL2Agent:
                         build_section(LossConfig, config["loss"]), build_section(PlannerConfig, config["planner"]),
                         ablation=train.get("ablation", "none"),
                         update_precision=train.get("update_precision", "float32"),
-                        observation_keys=state.get("observation_keys"))
+                        observation_keys=state.get("observation_keys"), device=device)
         finally:
             if own_env:
                 env.close()

@@ -188,7 +188,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
         z = m.encoder.encode(flat)
         num_pi = cfg.num_policy_samples
         num_gauss = cfg.num_candidates - num_pi
-        heads = torch.randperm(m.value.net.num_q, generator=self.generator)[:HEADS_PER_ESTIMATE].to(z.device)
+        # the evaluation generator lives on the planner's device; randperm draws on the generator's device
+        draw_device = self.generator.device if self.generator is not None else torch.device("cpu")
+        heads = torch.randperm(m.value.net.num_q, generator=self.generator, device=draw_device)
+        heads = heads[:HEADS_PER_ESTIMATE].to(z.device)
         mean = self._initial_mean(flat, num_envs, z)
         std = torch.full_like(mean, cfg.std_max)
         with self._low_precision() as dtype:

@@ -7,6 +7,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import ClassVar
 
+import torch
+
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
 from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.config import (
@@ -83,6 +85,9 @@ class TrainConfig:
     """A Table 2 name (``agents.switches.ABLATIONS``): none | P | O | PM | PMO."""
     threads: int | None = None
     """torch intra-op threads (None: torch's default)."""
+    device: str = "cpu"
+    """Where the agent lives and learns (``cpu``, ``cuda``, ``cuda:1``): networks, planning and updates; the
+    environments write their tensors there too. Replay and demonstrations stay in host memory."""
     progress: bool = True
     """Show a tqdm progress bar."""
     update_precision: str = "float32"
@@ -113,6 +118,12 @@ class TrainConfig:
             value = getattr(self, name)
             if value is not None and not isinstance(value, dict):
                 raise ConfigError(f"TrainConfig.{name} must be a JSON object (keyword -> value), got {value!r}")
+        try:
+            device = torch.device(self.device)
+        except (RuntimeError, TypeError) as error:
+            raise ConfigError(f"TrainConfig.device: {self.device!r} is not a torch device ({error})") from error
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ConfigError(f"TrainConfig.device={self.device!r}, but torch sees no CUDA device here")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
 

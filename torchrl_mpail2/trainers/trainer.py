@@ -90,7 +90,7 @@ class MPAIL2Trainer:
             from torchrl_mpail2.envs import make_env
 
             def env_fn(seed=t.seed):
-                return make_env(t.env, obs=t.obs, seed=seed, **(t.env_kwargs or {}))
+                return make_env(t.env, obs=t.obs, seed=seed, device=t.device, **(t.env_kwargs or {}))
         self.env_fn = env_fn
         self.run_dir = Path(t.run_dir)
         self.env = env_fn()
@@ -99,7 +99,8 @@ class MPAIL2Trainer:
         self.demos = demos if demos is not None else self._load_or_record_demos()
         if agent is None:
             agent = MPAIL2Agent(self.env.observation_spec, self.env.action_spec, cfg.model, cfg.loss, cfg.planner,
-                                ablation=t.ablation, update_precision=t.update_precision, demos=self.demos)
+                                ablation=t.ablation, update_precision=t.update_precision, demos=self.demos,
+                                device=t.device)
         self.agent = agent
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
         horizon = cfg.model.horizon
@@ -156,7 +157,8 @@ class MPAIL2Trainer:
     # ---- one batch -------------------------------------------------------------------------------
     def sample_batch(self, replay: TensorDictReplayBuffer) -> TensorDict:
         """``[B, H]`` sub-trajectories from ``replay`` with expert windows under ``"expert"`` (its transform's)."""
-        return replay.sample().reshape(self.cfg.train.batch_size, self.cfg.model.horizon)
+        batch = replay.sample().reshape(self.cfg.train.batch_size, self.cfg.model.horizon)
+        return batch.to(self.cfg.train.device)  # replay and demos stay in host memory
 
     def update(self, num_updates: int) -> dict:
         """``num_updates`` learner updates; returns the mean of each logged metric and the update time."""

@@ -1,0 +1,141 @@
+"""One planning call, one update and two point-mass training episodes on a device, checked against the CPU and
+timed at the paper configuration.
+
+    python benchmarks/device_smoke.py --device cuda            # on a machine with a GPU (a few minutes)
+    python benchmarks/device_smoke.py --device cpu --quick     # the same code path on the CPU (smoke)
+
+1. Agreement: the same weights on the CPU and on ``--device`` plan from the same observations with the same seeded
+   noise (first-action distance reported) and take one update on the same batch (losses compared).
+2. Training: two point-mass episodes with ``train.device=--device`` through the trainer (collection, replay,
+   updates, evaluation, checkpoints).
+3. Speed at the paper configuration (latent 512, hidden [512, 512], N 512, K 64, J 5, H 7, Lift state
+   observations): planning calls per second with one env, fp32 and bf16, and the update time at batch 256.
+Writes ``docs/results/device_smoke.json`` (``--out`` to change).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import copy
+import json
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SETTINGS, random_observations, replay_batch  # noqa: E402
+
+from torchrl_mpail2 import LatentMPPIPlanner, MPAIL2Loss, MPAIL2Updater, PlannerConfig  # noqa: E402
+from torchrl_mpail2.config import LossConfig  # noqa: E402
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+
+
+def synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def plan_once(modules, obs: TensorDict, cfg: PlannerConfig, seed: int) -> torch.Tensor:
+    spec = _action_spec(modules.action_dim, obs.device)
+    planner = LatentMPPIPlanner(modules, spec, cfg)
+    planner.generator = torch.Generator(device=obs.device).manual_seed(seed)
+    return planner(obs.clone())["action"]
+
+
+def _action_spec(action_dim: int, device) -> "Bounded":
+    from torchrl.data import Bounded
+
+    return Bounded(-1.0, 1.0, shape=(action_dim,), device=device)
+
+
+def agreement(device: torch.device, setting_name: str, planner_cfg: PlannerConfig, batch: int) -> dict:
+    setting = SETTINGS[setting_name]
+    cpu_modules = setting.modules(seed=0)
+    dev_modules = copy.deepcopy(cpu_modules).to(device)
+    obs = TensorDict(random_observations(setting.observations, 1), [1])
+    a_cpu = plan_once(cpu_modules, obs, planner_cfg, seed=7)
+    a_dev = plan_once(dev_modules, obs.to(device), planner_cfg, seed=7).cpu()
+    td = replay_batch(setting, batch, steps=dev_modules.cfg.horizon)
+    losses = {}
+    for name, modules, data in (("cpu", cpu_modules, td), ("device", dev_modules, td.to(device))):
+        torch.manual_seed(3)
+        out = MPAIL2Updater(MPAIL2Loss(modules, LossConfig()), retain_memory=False).update(data)
+        losses[name] = {k: float(v) for k, v in out.items() if k.startswith("loss_")}
+    return {"first_action_distance": float((a_cpu - a_dev).norm()),
+            "note": "different devices draw different random numbers from the same seed: the plans agree only as "
+                    "far as MPPI's result does not depend on the noise drawn",
+            "losses_cpu": losses["cpu"], "losses_device": losses["device"]}
+
+
+def train_two_episodes(device: torch.device) -> dict:
+    with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):  # scripted demos go to scratch/demos
+        cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none",
+                                                     "train.num_demos=2", "train.total_episodes=2",
+                                                     "train.warmup_episodes=1", "train.eval_every=2",
+                                                     "train.eval_episodes=2", f"train.device={device}",
+                                                     f"train.run_dir={scratch}/run"])
+        start = time.perf_counter()
+        summary = MPAIL2Trainer(cfg).train()
+        return {"episodes": summary["episodes"], "updates": summary["updates"],
+                "eval_success_any_step": summary["last_eval"]["success_rate_any_step"],
+                "seconds": time.perf_counter() - start, "time_split_s": summary["time_split_s"]}
+
+
+def speed(device: torch.device, calls: int, updates: int, batch: int) -> dict:
+    setting = SETTINGS["paper"]
+    modules = setting.modules(seed=0).to(device)
+    obs = TensorDict(random_observations(setting.observations, 1), [1]).to(device)
+    out = {}
+    for label, bf16 in (("fp32", False), ("bf16", True)):
+        planner = LatentMPPIPlanner(modules, _action_spec(setting.action_dim, device), PlannerConfig(bf16=bf16))
+        for _ in range(3):
+            planner(obs.clone())
+        synchronize(device)
+        start = time.perf_counter()
+        for _ in range(calls):
+            planner(obs.clone())
+        synchronize(device)
+        out[f"planning_calls_per_s_{label}"] = calls / (time.perf_counter() - start)
+    td = replay_batch(setting, batch, steps=modules.cfg.horizon).to(device)
+    updater = MPAIL2Updater(MPAIL2Loss(modules, LossConfig(transitions_per_window=1)), retain_memory=False)
+    updater.update(td)
+    synchronize(device)
+    start = time.perf_counter()
+    for _ in range(updates):
+        updater.update(td)
+    synchronize(device)
+    out["update_ms"] = 1000 * (time.perf_counter() - start) / updates
+    out["update_batch"] = batch
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    p.add_argument("--quick", action="store_true", help="small planner and few timed calls (a smoke run)")
+    p.add_argument("--out", type=Path, default=RESULTS / "device_smoke.json")
+    args = p.parse_args()
+    device = torch.device(args.device)
+    small = PlannerConfig(num_candidates=64, num_elites=8, iterations=2)
+    result = {"device": str(device), "device_name": torch.cuda.get_device_name(device) if device.type == "cuda"
+              else platform.processor() or platform.machine(), "torch": torch.__version__, "quick": args.quick}
+    result["agreement"] = agreement(device, "state", small if args.quick else PlannerConfig(), 16 if args.quick else 256)
+    print(json.dumps(result["agreement"]), flush=True)
+    result["training"] = train_two_episodes(device)
+    print(json.dumps(result["training"]), flush=True)
+    result["speed_paper_config"] = speed(device, calls=3 if args.quick else 50, updates=2 if args.quick else 20,
+                                         batch=32 if args.quick else 256)
+    print(json.dumps(result["speed_paper_config"]), flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
