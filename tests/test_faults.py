@@ -40,6 +40,17 @@ def test_out_of_range_or_non_finite_values_fail_before_training(override, messag
         apply_overrides(preset("point_mass"), [override])
 
 
+def test_typed_overrides_from_python_are_checked_like_strings():
+    cfg = apply_overrides(preset("point_mass"), {"train.total_episodes": 7, "model.hidden_dims": [32, 32]})
+    assert cfg.train.total_episodes == 7 and cfg.model.hidden_dims == (32, 32)
+    with pytest.raises(ConfigError, match="TrainConfig.total_episodes must be >= 1, got 0"):
+        apply_overrides(preset("point_mass"), {"train.total_episodes": 0})
+    with pytest.raises(ConfigError, match="TrainConfig.batch_size must be an integer, got '64'"):
+        apply_overrides(preset("point_mass"), {"train.batch_size": "64"})
+    with pytest.raises(ConfigError, match="unknown field planner.temp"):
+        apply_overrides(preset("point_mass"), {"planner.temp": 1.0})
+
+
 def test_a_config_file_with_a_wrongly_typed_value_names_the_field():
     from torchrl_mpail2.trainers import ExperimentConfig
 
