@@ -76,11 +76,10 @@ def agreement(device: torch.device, setting_name: str, planner_cfg: PlannerConfi
 
 def train_two_episodes(device: torch.device) -> dict:
     with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):  # scripted demos go to scratch/demos
-        cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none",
-                                                     "train.num_demos=2", "train.total_episodes=2",
-                                                     "train.warmup_episodes=1", "train.eval_every=2",
-                                                     "train.eval_episodes=2", f"train.device={device}",
-                                                     f"train.run_dir={scratch}/run"])
+        cfg = apply_overrides(preset("point_mass"), {
+            "train.progress": False, "train.logger": "none", "train.num_demos": 2, "train.total_episodes": 2,
+            "train.warmup_episodes": 1, "train.eval_every": 2, "train.eval_episodes": 2, "train.device": str(device),
+            "train.run_dir": f"{scratch}/run"})
         start = time.perf_counter()
         summary = MPAIL2Trainer(cfg).train()
         return {"episodes": summary["episodes"], "updates": summary["updates"],

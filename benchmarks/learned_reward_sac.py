@@ -36,8 +36,8 @@ EVAL_SEED = 2_000_000
 
 def train_mpail2(run_dir: Path, episodes: int, seed: int = 0) -> Path:
     """A point-mass MPAIL2 run; returns its ``best`` checkpoint."""
-    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", f"train.seed={seed}",
-                                                 f"train.total_episodes={episodes}", f"train.run_dir={run_dir}"])
+    cfg = apply_overrides(preset("point_mass"), {"train.progress": False, "train.logger": "none", "train.seed": seed,
+                                                 "train.total_episodes": episodes, "train.run_dir": str(run_dir)})
     MPAIL2Trainer(cfg).train()
     return run_dir / "checkpoints" / "best"
 
