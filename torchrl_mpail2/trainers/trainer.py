@@ -19,14 +19,13 @@ from torchrl.data.replay_buffers import SliceSampler
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.data import (TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations, load_demo_source, load_demos,
-                                 record_demos)
+from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
-from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
+from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
 
@@ -35,14 +34,6 @@ log = logging.getLogger(__name__)
 DEFAULT_EPISODE_BOUND = 1000
 #: What ``--transfer`` copies from another run: everything, or only the world model.
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
-
-
-def default_demo_dir(cfg: ExperimentConfig) -> Path:
-    t = cfg.train
-    options = "".join(f"-{k}={v}" for k, v in sorted({**(t.env_kwargs or {}), **(t.expert_kwargs or {})}.items()))
-    if t.demo_steps_after_success is not None:
-        options += f"-stop{t.demo_steps_after_success}"
-    return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}{options}-{t.num_demos}ep-seed{t.seed}"
 
 
 class MPAIL2Trainer:
@@ -96,7 +87,7 @@ class MPAIL2Trainer:
         self.env = env_fn()
         if t.video:
             check_can_film(self.env)
-        self.demos = demos if demos is not None else self._load_or_record_demos()
+        self.demos = demos if demos is not None else load_or_record_demos(cfg, self.env, env_fn)
         if agent is None:
             agent = MPAIL2Agent(self.env.observation_spec, self.env.action_spec, cfg.model, cfg.loss, cfg.planner,
                                 ablation=t.ablation, update_precision=t.update_precision, demos=self.demos,
@@ -115,22 +106,6 @@ class MPAIL2Trainer:
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
     # ---- setup -----------------------------------------------------------------------------------
-    def _load_or_record_demos(self) -> Demonstrations:
-        t = self.cfg.train
-        if t.demos is not None:
-            return load_demo_source(t.demos, self.env, progress=t.progress)
-        path = default_demo_dir(self.cfg)
-        if path.exists():
-            return load_demos(path, self.env)
-        demo_env = self.env_fn(seed=t.seed + 1_000_000)
-        # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
-        options = {"seed": t.seed + 1_000_000, **t.expert_kwargs} if t.expert_kwargs else {}
-        expert = get_expert(t.env, demo_env, **options)
-        log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
-        return record_demos(demo_env, expert, t.num_demos, out=path, seed=t.seed + 1_000_000, progress=t.progress,
-                            steps_after_success=t.demo_steps_after_success,
-                            env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
-
     def _episode_bound(self) -> int:
         """Longest possible episode, read from the environment (``horizon`` or ``max_episode_steps``)."""
         env = self.env

@@ -1,0 +1,45 @@
+"""The demonstrations of a run: the configured source, else scripted-expert demos cached under ``demos/``."""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+from torchrl.envs import EnvBase
+
+from torchrl_mpail2.data import Demonstrations, load_demo_source, load_demos, record_demos
+from torchrl_mpail2.experts import get_expert
+from torchrl_mpail2.trainers.config import ExperimentConfig
+
+log = logging.getLogger(__name__)
+#: Offset of the demo episodes' seeds from the run's seed (demo, training and evaluation episodes never share one).
+DEMO_SEED_OFFSET = 1_000_000
+
+
+def default_demo_dir(cfg: ExperimentConfig) -> Path:
+    """Where scripted demos of ``cfg`` are cached: one folder per env, options, count and seed."""
+    t = cfg.train
+    options = "".join(f"-{k}={v}" for k, v in sorted({**(t.env_kwargs or {}), **(t.expert_kwargs or {})}.items()))
+    if t.demo_steps_after_success is not None:
+        options += f"-stop{t.demo_steps_after_success}"
+    return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}{options}-{t.num_demos}ep-seed{t.seed}"
+
+
+def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) -> Demonstrations:
+    """``train.demos`` if set (a folder or ``<format>:<path>``), else the cached scripted demos, recorded on first
+    use with ``env_fn(seed=...)`` and the env's scripted expert."""
+    t = cfg.train
+    if t.demos is not None:
+        return load_demo_source(t.demos, env, progress=t.progress)
+    path = default_demo_dir(cfg)
+    if path.exists():
+        return load_demos(path, env)
+    seed = t.seed + DEMO_SEED_OFFSET
+    demo_env = env_fn(seed=seed)
+    # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
+    options = {"seed": seed, **t.expert_kwargs} if t.expert_kwargs else {}
+    expert = get_expert(t.env, demo_env, **options)
+    log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
+    return record_demos(demo_env, expert, t.num_demos, out=path, seed=seed, progress=t.progress,
+                        steps_after_success=t.demo_steps_after_success,
+                        env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
