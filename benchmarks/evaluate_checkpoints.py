@@ -21,11 +21,10 @@ from tqdm import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.trainers import TrainConfig
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
-#: Evaluation seed of runs whose config predates ``train.eval_seed`` (its default).
-DEFAULT_EVAL_SEED = 2_000_000
 
 
 def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
@@ -47,7 +46,7 @@ def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None) -> di
     if threads:
         torch.set_num_threads(threads)
     env, train = run_env(run_dir)
-    seeds = evaluation_seeds(train.get("eval_seed", DEFAULT_EVAL_SEED), episodes)
+    seeds = evaluation_seeds(train.get("eval_seed", TrainConfig().eval_seed), episodes)
     rows = []
     for episode, path in tqdm(checkpoints, desc="checkpoints"):
         agent = MPAIL2Agent.from_checkpoint(path, env)

@@ -27,11 +27,11 @@ from torchrl_mpail2.agents import LearnedRewardTransform
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts.sac import fit_sac
 from torchrl_mpail2.modules import make_mpail2_modules
-from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from torchrl_mpail2.trainers import MPAIL2Trainer, TrainConfig, apply_overrides, preset
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
-EVAL_SEED = 2_000_000
+EVAL_SEED = TrainConfig().eval_seed  # the fixed evaluation episodes of every run
 
 
 def train_mpail2(run_dir: Path, episodes: int, seed: int = 0) -> Path:
