@@ -258,3 +258,30 @@ def test_return_form_reaches_value_and_actor_losses_and_is_validated():
     assert loss.value_loss.return_form == loss.actor_loss.return_form == "td_lambda"
     with pytest.raises(ConfigError, match="return_form"):
         LossConfig(return_form="dreamer")
+
+
+@pytest.mark.parametrize("composite", ["mpail2", "dac"])
+def test_forward_and_updater_follow_the_one_stage_list(composite):
+    from torchrl_mpail2.objectives import DACLoss
+
+    torch.manual_seed(0)
+    loss = MPAIL2Loss(tiny_modules()) if composite == "mpail2" else DACLoss(tiny_modules(horizon=1))
+    expected = ("dynamics", "reward", "value", "actor") if composite == "mpail2" else ("reward", "value", "actor")
+    assert loss.stages == expected
+    assert {k for k in loss(replay_batch()).keys() if k.startswith("loss_")} == {f"loss_{s}" for s in (*expected, "alpha")}
+    updater = MPAIL2Updater(loss, retain_memory=False)
+    stepped = []
+    for stage, optimizer in updater.optimizers.items():
+        original = optimizer.step
+        optimizer.step = lambda *a, _stage=stage, _original=original, **k: (stepped.append(_stage), _original(*a, **k))[1]
+    # a window batch holding NaN is skipped only where a stage reads it: the model-free composite trains on the
+    # latest-episode batch alone when one is given
+    bad = replay_batch()
+    bad["observation"][0, 0, 0] = float("nan")
+    metrics = updater.update(bad, replay_batch())
+    assert (metrics is None) == (composite == "mpail2")
+    if composite == "dac":
+        assert stepped == [*expected, "alpha"]
+    stepped.clear()
+    updater.update(replay_batch())
+    assert stepped == [*expected, "alpha"]

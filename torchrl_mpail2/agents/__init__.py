@@ -2,8 +2,7 @@
 learned reward as a TorchRL transform."""
 from torchrl_mpail2.agents.switches import ABLATIONS, AgentSwitches, switches_for
 from torchrl_mpail2.agents.update import MPAIL2Updater
-from torchrl_mpail2.agents.model_free_update import ModelFreeUpdater
 from torchrl_mpail2.agents.mpail2 import MPAIL2Agent
 from torchrl_mpail2.agents.learned_reward import LearnedRewardTransform
 
-__all__ = ["ABLATIONS", "AgentSwitches", "LearnedRewardTransform", "MPAIL2Agent", "MPAIL2Updater", "ModelFreeUpdater", "switches_for"]
+__all__ = ["ABLATIONS", "AgentSwitches", "LearnedRewardTransform", "MPAIL2Agent", "MPAIL2Updater", "switches_for"]

@@ -12,7 +12,6 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.agents.model_free_update import ModelFreeUpdater
 from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, switches_for
 from torchrl_mpail2.agents.update import MPAIL2Updater
 from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section
@@ -93,7 +92,7 @@ class MPAIL2Agent:
             self.planner = LatentMPPIPlanner(self.modules, action_spec, planner)
         else:
             self.loss, self.planner = DACLoss(self.modules, loss), None
-            self.updater = ModelFreeUpdater(self.loss)
+            self.updater = MPAIL2Updater(self.loss)
         policy = self.planner if self.switches.act_with == "planner" else PolicyActor(self.modules)
         self.actor = WarmupSwitch(policy, action_spec)
 

@@ -1,4 +1,4 @@
-"""One MPAIL2 learner update in the paper's order, each stage with its own optimiser (Algorithm 1)."""
+"""One learner update in the composite loss's stage order, each stage with its own optimiser (Algorithm 1)."""
 from __future__ import annotations
 
 import ctypes
@@ -10,10 +10,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
-from torchrl_mpail2.objectives import sample_window_transitions
+from torchrl_mpail2.objectives import StagedLoss
 from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives._imagination import stop_gradient_precision
-from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
 
 log = logging.getLogger(__name__)
 
@@ -49,16 +47,18 @@ def retain_freed_memory() -> bool:
 
 
 class MPAIL2Updater:
-    """Runs dynamics -> reward -> value (+ Polyak) -> policy (+ alpha) on one batch.
+    """Runs the stages of a composite loss in its ``stages`` order on one batch, a step after each: for
+    :class:`~torchrl_mpail2.objectives.MPAIL2Loss` dynamics -> reward -> value (+ Polyak) -> policy (+ alpha), for
+    the model-free :class:`~torchrl_mpail2.objectives.DACLoss` the same without dynamics.
 
-    Adam optimisers and gradient clips come from :meth:`MPAIL2Loss.param_groups` (Table 4). A batch holding
+    Adam optimisers and gradient clips come from the loss's ``param_groups()`` (Table 4). A batch holding
     NaN or Inf anywhere is skipped as a whole before it touches any state (weights, optimisers, running
     reward scale), counted in ``skipped["batch"]`` and logged with its non-finite keys (also kept in
     ``last_nonfinite_keys``); :meth:`update` then returns None. A stage whose loss is not finite is skipped
     (no gradient step) and counted in ``skipped`` under its name, so that one bad batch cannot corrupt the weights.
 
     Args:
-        loss (MPAIL2Loss): the composite loss.
+        loss (StagedLoss): the composite loss.
 
     Keyword Args:
         retain_memory (bool): call :func:`retain_freed_memory` (process-wide; Linux/glibc only). Defaults to True.
@@ -75,6 +75,7 @@ class MPAIL2Updater:
     Examples:
         >>> from torchrl_mpail2.config import ModelConfig
         >>> from torchrl_mpail2.modules import MPAIL2Modules
+        >>> from torchrl_mpail2.objectives import MPAIL2Loss
         >>> modules = MPAIL2Modules({"observation": [3]}, 2, ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16,
         ...                         vector_coder_hidden=16, horizon=3))
         >>> updater = MPAIL2Updater(MPAIL2Loss(modules))
@@ -86,7 +87,7 @@ class MPAIL2Updater:
         ['loss_actor', 'loss_alpha', 'loss_dynamics', 'loss_reward', 'loss_value']
     """
 
-    def __init__(self, loss: MPAIL2Loss, *, retain_memory: bool = True, bf16_stop_gradient: bool = False,
+    def __init__(self, loss: StagedLoss, *, retain_memory: bool = True, bf16_stop_gradient: bool = False,
                  bf16: bool = False):
         if retain_memory:
             retain_freed_memory()
@@ -97,7 +98,6 @@ class MPAIL2Updater:
         for module in loss.modules():
             if isinstance(module, MPAIL2LossBase):
                 module.bf16_stop_gradient = bf16_stop_gradient
-        self.target_dtype = torch.bfloat16 if bf16_stop_gradient else None
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.max_grad_norm: dict[str, float | None] = {}
         for stage, groups in loss.param_groups().items():
@@ -150,37 +150,20 @@ class MPAIL2Updater:
         Returns:
             TensorDict: every ``loss_*`` term and diagnostic, detached; None when the batch was skipped.
         """
-        if self.skip_nonfinite(tensordict, policy_tensordict):
-            return None
-        with self._forward_precision():
-            metrics = self.loss.dynamics_loss(tensordict)
-        self._step("dynamics", metrics["loss_dynamics"])
-        # The encoder changes only in the dynamics stage, so latents encoded now are exactly
-        # what the reward, value and actor stages would each encode.
-        metrics.update(self._reward_value_actor(policy_tensordict if policy_tensordict is not None else tensordict))
-        return metrics.apply(lambda x: x.detach().float())
-
-    def _reward_value_actor(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """The reward, value (+ Polyak) and actor (+ alpha) stages on stop-gradient latents of one batch
-        (``cfg.transitions_per_window`` random transitions of each window)."""
         loss = self.loss
-        tensordict = sample_window_transitions(tensordict, loss.cfg.transitions_per_window)
-        with self._forward_precision():
-            latents = loss.replay_latents(tensordict)
-            metrics = loss.reward_loss(tensordict, latents=latents, expert_latents=loss.expert_latents(tensordict))
-        self._step("reward", metrics["loss_reward"])
-        with self._forward_precision(), stop_gradient_precision(self.target_dtype):
-            out = loss.value_loss(tensordict, latents=latents)
-        self._step("value", out["loss_value"])
-        self.target_updater.step()
-        metrics.update(out)
-        with self._forward_precision():
-            out = loss.actor_loss(tensordict, latents=latents)
-        self._step("actor", out["loss_actor"])
-        self._step("alpha", out["loss_alpha"])
-        metrics.update(out)
+        windows, transitions = loss.stage_batches(tensordict, policy_tensordict)
+        if self.skip_nonfinite(windows, transitions):
+            return None
+        metrics = TensorDict({}, [])
+        for stage, out in loss.stage_outputs(tensordict, policy_tensordict, precision=self._forward_precision):
+            self._step(stage, out[f"loss_{stage}"])
+            if stage == "value":
+                self.target_updater.step()
+            elif stage == "actor":
+                self._step("alpha", out["loss_alpha"])
+            metrics.update(out)
         metrics.set("nonfinite_skips", torch.tensor(float(sum(self.skipped.values()))))
-        return metrics
+        return metrics.apply(lambda x: x.detach().float())
 
     def state_dict(self) -> dict:
         return {"optimizers": {k: o.state_dict() for k, o in self.optimizers.items()}, "skipped": dict(self.skipped)}

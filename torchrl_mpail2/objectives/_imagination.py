@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from contextlib import contextmanager, nullcontext
-from contextvars import ContextVar
 
 import torch
 from torch import Tensor, nn
@@ -20,20 +19,6 @@ from torchrl_mpail2.modules.value import QEnsembleNet
 
 #: Heads drawn from the ensemble for a target or an objective (as in TD-MPC2, which the paper builds on).
 HEADS_PER_ESTIMATE = 2
-
-_stop_gradient_dtype: ContextVar[torch.dtype | None] = ContextVar("stop_gradient_dtype", default=None)
-
-
-@contextmanager
-def stop_gradient_precision(dtype: torch.dtype | None):
-    """Within the context, imagined returns computed with gradients disabled (the value target) run under
-    autocast to ``dtype`` (``None``: float32). Returns computed with gradients (the actor's) are unaffected."""
-    token = _stop_gradient_dtype.set(dtype)
-    try:
-        yield
-    finally:
-        _stop_gradient_dtype.reset(token)
-
 
 def _checked_form(form: str) -> str:
     if form not in RETURN_FORMS:
@@ -75,6 +60,7 @@ def chain_rewards(reward: RewardNet, latents: Tensor) -> Tensor:
 def imagined_lambda_return(
     z0: Tensor, plan: Tensor, dynamics: DynamicsNet, reward: RewardNet, q_estimate: Callable[[Tensor, Tensor], Tensor],
     policy: PlanPolicyNet, gamma: float, lmbda: float, return_form: str = "paper",
+    stop_gradient_dtype: torch.dtype | None = None,
 ) -> Tensor:
     r"""Lambda-return of a plan rolled out through the latent model.
 
@@ -86,11 +72,13 @@ def imagined_lambda_return(
         plan (Tensor): actions ``[M, H, A]``.
         q_estimate (Callable): ``(z [H+1, M, Z], a [H+1, M, A]) -> [H+1, M]``.
         return_form (str): one of :data:`~torchrl_mpail2.functional.RETURN_FORMS`.
+        stop_gradient_dtype (torch.dtype, optional): autocast dtype of the rollout when gradients are disabled
+            (the value target); ignored where gradients are enabled (the actor's return). None: float32.
 
     Returns:
-        Tensor: ``G`` of shape ``[M]`` (float32, also under :func:`stop_gradient_precision`).
+        Tensor: ``G`` of shape ``[M]``, float32 in either case.
     """
-    dtype = None if torch.is_grad_enabled() else _stop_gradient_dtype.get()
+    dtype = None if torch.is_grad_enabled() else stop_gradient_dtype
     low_precision = torch.autocast(z0.device.type, dtype=dtype) if dtype is not None else nullcontext()
     with low_precision:
         latents = rollout_latents(dynamics, z0, plan)

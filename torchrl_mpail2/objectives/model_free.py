@@ -16,8 +16,11 @@ from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
-from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
+from torchrl_mpail2.config import LossConfig
+from torchrl_mpail2.objectives._base import MPAIL2LossBase
 from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen
+from torchrl_mpail2.objectives.composite import StagedLoss
+from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 
 
 class ModelFreeActorLoss(MPAIL2LossBase):
@@ -101,18 +104,18 @@ class ModelFreeValueLoss(MPAIL2LossBase):
                            "learned_reward_mean": r.mean()}, [])
 
 
-class DACLoss(MPAIL2LossBase):
+class DACLoss(StagedLoss):
     r"""Composite of the [-PM] (DAC) ablation: adversarial reward, model-free value (with encoder) and actor.
 
     Same reward as MPAIL2 (:class:`AdversarialRewardLoss`); no dynamics loss, no planner. The
     policy of ``modules`` must have horizon 1. :meth:`param_groups` mirrors :meth:`MPAIL2Loss.param_groups`
-    with the encoder moved into the value stage.
+    with the encoder moved into the value stage. The actor stage reads the latents encoded before the value
+    stage changed the encoder.
     """
 
-    def __init__(self, modules, cfg=None):
-        from torchrl_mpail2.config import LossConfig
-        from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
+    stages = ("reward", "value", "actor")
 
+    def __init__(self, modules, cfg: LossConfig | None = None):
         cfg = cfg or LossConfig()
         super().__init__(modules.encoder)
         self.cfg = cfg
@@ -138,11 +141,3 @@ class DACLoss(MPAIL2LossBase):
             "actor": [dict(params=list(m.policy.parameters()), lr=c.lr, max_grad_norm=c.policy_grad_clip)],
             "alpha": [dict(params=[self.actor_loss.log_alpha], lr=c.alpha_lr, max_grad_norm=None)],
         }
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        tensordict = sample_window_transitions(tensordict, self.cfg.transitions_per_window)
-        latents = self.replay_latents(tensordict)
-        out = self.reward_loss(tensordict, latents=latents)
-        out.update(self.value_loss(tensordict, latents=latents))
-        out.update(self.actor_loss(tensordict, latents=latents))
-        return out

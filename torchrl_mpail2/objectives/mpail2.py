@@ -2,29 +2,26 @@ r"""Composite :class:`MPAIL2Loss`: the four MPAIL2 objectives and their optimise
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 
 from torchrl_mpail2.config import LossConfig
 from torchrl_mpail2.modules.factory import MPAIL2Modules
-from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
 from torchrl_mpail2.objectives.actor import MultiStepActorLoss
+from torchrl_mpail2.objectives.composite import StagedLoss
 from torchrl_mpail2.objectives.dynamics import JEPDynamicsLoss
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 from torchrl_mpail2.objectives.value import LambdaReturnValueLoss
 
-#: The paper's update order (Algorithm 1); each stage has its own optimiser.
-UPDATE_ORDER = ("dynamics", "reward", "value", "actor")
 
-
-class MPAIL2Loss(MPAIL2LossBase):
+class MPAIL2Loss(StagedLoss):
     r"""All MPAIL2 objectives in one TorchRL ``LossModule``.
 
     ``forward`` returns every term (``loss_dynamics``, ``loss_reward``, ``loss_value``, ``loss_actor``,
     ``loss_alpha``) plus detached diagnostics, all computed from the same parameters. The paper updates
     the components one after the other (dynamics -> reward -> value -> policy), each with its own
-    optimiser: :meth:`param_groups` gives those groups (encoder LR 3e-5, the rest 3e-4, gradient clip 5
-    for the value and 1 for the policy) and :class:`torchrl_mpail2.agents.MPAIL2Updater` runs that
-    order in one call. The sub-losses are available as ``loss.dynamics_loss``, ``loss.reward_loss``,
+    optimiser: ``stages`` is that order, :meth:`param_groups` gives the groups (encoder LR 3e-5, the rest 3e-4,
+    gradient clip 5 for the value and 1 for the policy) and :class:`torchrl_mpail2.agents.MPAIL2Updater` runs
+    them in one call. The sub-losses are available as ``loss.dynamics_loss``, ``loss.reward_loss``,
     ``loss.value_loss`` and ``loss.actor_loss``.
 
     Args:
@@ -46,6 +43,9 @@ class MPAIL2Loss(MPAIL2LossBase):
         ['loss_actor', 'loss_alpha', 'loss_dynamics', 'loss_reward', 'loss_value']
     """
 
+    #: The paper's update order (Algorithm 1).
+    stages = ("dynamics", "reward", "value", "actor")
+
     def __init__(self, modules: MPAIL2Modules, cfg: LossConfig | None = None):
         cfg = cfg or LossConfig()
         super().__init__(modules.encoder)
@@ -62,11 +62,6 @@ class MPAIL2Loss(MPAIL2LossBase):
                                              lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
                                              init_alpha=cfg.init_alpha,
                                              target_entropy_per_step=cfg.target_entropy_per_step)
-
-    def set_keys(self, **kwargs) -> None:
-        super().set_keys(**kwargs)
-        for sub in (self.dynamics_loss, self.reward_loss, self.value_loss, self.actor_loss):
-            sub.set_keys(**kwargs)
 
     @property
     def log_alpha(self) -> torch.nn.Parameter:
@@ -88,12 +83,3 @@ class MPAIL2Loss(MPAIL2LossBase):
             "actor": [dict(params=list(m.policy.parameters()), lr=c.lr, max_grad_norm=c.policy_grad_clip)],
             "alpha": [dict(params=[self.actor_loss.log_alpha], lr=c.alpha_lr, max_grad_norm=None)],
         }
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        out = self.dynamics_loss(tensordict)
-        tensordict = sample_window_transitions(tensordict, self.cfg.transitions_per_window)
-        latents = self.replay_latents(tensordict)
-        out.update(self.reward_loss(tensordict, latents=latents))
-        out.update(self.value_loss(tensordict, latents=latents))
-        out.update(self.actor_loss(tensordict, latents=latents))
-        return out

@@ -33,6 +33,9 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         return_form (str): form of the imagined return, one of ``RETURN_FORMS`` (``"paper"``: Eq. 6 as printed).
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
 
+    With ``bf16_stop_gradient`` set (the updater's bf16 modes) the target's imagined rollout runs under bfloat16
+    autocast; the return itself is float32.
+
     Parameters: ``qvalue_network_params`` and ``target_qvalue_network_params`` (update the latter with
     ``torchrl.objectives.SoftUpdate(loss, tau=0.01)``).
 
@@ -66,7 +69,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         with self.target_qvalue_network_params.data.to_module(self.qvalue_network):
             G = imagined_lambda_return(z_next, plan, self.dynamics_network.module, self.reward_network.module,
                                        ensemble_estimate(self.qvalue_network.net, "min"), policy, self.gamma, self.lmbda,
-                                       self.return_form)
+                                       self.return_form, torch.bfloat16 if self.bf16_stop_gradient else None)
         r = self.reward_network.module(z, z_next).squeeze(-1)
         if terminated is not None and self.mask_terminal:
             G = G * (~terminated.reshape(G.shape)).to(G.dtype)
