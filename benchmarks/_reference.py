@@ -41,11 +41,11 @@ class InitialPlanner(LatentMPPIPlanner):
         for k in range(self.horizon):
             zk = dynamics(zk, actions[:, k])
             h_now_next, h_next = reward.project(zk)
-            total = total + cfg.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
+            total = total + self.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
             h_now = h_now_next
         last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
-        return (total + cfg.gamma ** self.horizon * q).view(batch, num)
+        return (total + self.gamma ** self.horizon * q).view(batch, num)
 
     @torch.no_grad()
     def planning(self, td: TensorDictBase) -> Tensor:

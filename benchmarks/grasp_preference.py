@@ -51,7 +51,7 @@ def preference(agent: MPAIL2Agent, states: TensorDict) -> dict:
         plan = planner(states.clone())["plan"]
     z = agent.modules.encoder.encode(states)
     m, horizon = agent.modules, plan.shape[-2]
-    discounts = planner.cfg.gamma ** torch.arange(horizon, dtype=z.dtype)
+    discounts = planner.gamma ** torch.arange(horizon, dtype=z.dtype)
     returns, rewards = {}, {}
     for command in (1.0, -1.0):
         held = plan.clone()

@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SETTINGS, gemm_ceiling, machine, median_ms, random_observations  # noqa: E402
 from _reference import InitialPlanner  # noqa: E402
 
-from torchrl_mpail2 import LatentMPPIPlanner, PlannerConfig  # noqa: E402
+from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, PlannerConfig  # noqa: E402
 from torchrl_mpail2.modules.encoder import validate_observations  # noqa: E402
 from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE  # noqa: E402
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv  # noqa: E402
@@ -108,7 +108,7 @@ def build(setting, num_envs: int, seed: int = 0) -> dict:
     common = dict(temperature=1.0 / cfg.temperature, planning_horizon=modules.horizon, optim_steps=cfg.iterations,
                   num_candidates=cfg.num_candidates, top_k=cfg.num_elites)
     value = TensorDictModule(PolicyValue(modules), in_keys=["z"], out_keys=["state_value"])
-    tdl = TDLambdaEstimator(gamma=cfg.gamma, lmbda=0.95, value_network=value, shifted=True)
+    tdl = TDLambdaEstimator(gamma=LossConfig.gamma, lmbda=0.95, value_network=value, shifted=True)
     with torch.no_grad():
         z = modules.encoder.encode(obs)
     planners = {
@@ -117,7 +117,7 @@ def build(setting, num_envs: int, seed: int = 0) -> dict:
         "initial fp32": InitialPlanner(modules, spec, PlannerConfig(), generator=torch.Generator().manual_seed(0)),
         "initial bf16": InitialPlanner(modules, spec, PlannerConfig(bf16=True), generator=torch.Generator().manual_seed(0)),
         "torchrl TD(lambda)": MPPIPlanner(env, tdl, **common),
-        "torchrl terminal": MPPIPlanner(env, TerminalReturn(modules, cfg.gamma), **common),
+        "torchrl terminal": MPPIPlanner(env, TerminalReturn(modules, LossConfig.gamma), **common),
     }
     inputs = {name: (TensorDict({"z": z}, [num_envs]) if name.startswith("torchrl") else obs) for name in planners}
     return {"modules": modules, "cfg": cfg, "planners": planners, "inputs": inputs, "obs": obs}

@@ -69,8 +69,14 @@ def test_bad_agent_settings_are_refused_by_name():
         MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, update_precision="fp8")
     with pytest.raises(ValueError, match="model-based updater only"):
         MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, ablation="PM", update_precision="bf16")
-    with pytest.raises(ValueError, match="gamma"):
-        MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, planner=PlannerConfig(gamma=0.9))
+
+
+def test_the_planner_discounts_with_the_loss_gamma():
+    from torchrl_mpail2.config import LossConfig
+
+    env = make_env("point_mass")
+    agent = MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, loss=LossConfig(gamma=0.9))
+    assert agent.planner.gamma == agent.loss.value_loss.gamma == agent.loss.actor_loss.gamma == 0.9
 
 
 def test_an_agent_loaded_from_a_checkpoint_plays_exactly_like_the_trainer(trained_run):

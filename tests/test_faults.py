@@ -60,6 +60,17 @@ def test_a_config_file_with_a_wrongly_typed_value_names_the_field():
         ExperimentConfig.from_dict(data)
 
 
+def test_a_config_file_of_an_older_version_with_planner_gamma_still_loads():
+    from torchrl_mpail2.trainers import ExperimentConfig
+
+    data = preset("point_mass").to_dict()
+    data["planner"]["gamma"] = data["loss"]["gamma"]  # written when the discount was kept in both sections
+    assert ExperimentConfig.from_dict(data) == preset("point_mass")
+    data["planner"]["gamma"] = 0.5
+    with pytest.raises(ConfigError, match=r"planner.gamma \(0.5\) differs from loss.gamma \(0.99\)"):
+        ExperimentConfig.from_dict(data)
+
+
 @pytest.mark.parametrize("cls", [TrainConfig, ModelConfig, LossConfig, PlannerConfig])
 def test_every_numeric_config_field_declares_its_range(cls):
     from torchrl_mpail2.config import field_kind

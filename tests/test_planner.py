@@ -56,7 +56,7 @@ class FixedPolicy(nn.Module):
         return self.plan.expand(*z.shape[:-1], *self.plan.shape), torch.zeros(z.shape[:-1])
 
 
-def known_planner(policy_plan=None, reward_scale=1.0, **cfg):
+def known_planner(policy_plan=None, reward_scale=1.0, gamma=0.99, **cfg):
     m = tiny_modules(obs_dim=2, action_dim=2, latent_dim=2, horizon=3)
     m.encoder.net.forward = lambda obs: obs  # the latent is the observation itself
     m.dynamics.module = AddDynamics()
@@ -65,7 +65,7 @@ def known_planner(policy_plan=None, reward_scale=1.0, **cfg):
     policy = FixedPolicy(torch.zeros(3, 2) if policy_plan is None else policy_plan)
     m.policy.net = policy
     defaults = dict(num_candidates=256, num_elites=32, iterations=6, temperature=0.5)
-    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(**{**defaults, **cfg}),
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(**{**defaults, **cfg}), gamma=gamma,
                                 generator=torch.Generator().manual_seed(0))
     return planner, policy
 

@@ -42,7 +42,7 @@ def _one_thread():
 def reference_plan(m, cfg: PlannerConfig, obs, generator, prev_mean=None, deterministic=True, temperature=None):
     """Algorithm 2 with loops; returns ``(action [B, A], plan [B, H, A])``."""
     temperature = cfg.temperature if temperature is None else temperature
-    H, A, gamma = m.cfg.horizon, m.action_dim, cfg.gamma
+    H, A, gamma = m.cfg.horizon, m.action_dim, LossConfig.gamma
     num_pi = cfg.num_policy_samples
     num_gauss = cfg.num_candidates - num_pi
     with torch.no_grad():

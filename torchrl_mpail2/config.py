@@ -193,7 +193,7 @@ class LossConfig:
     """Coefficients of the four MPAIL2 objectives (Eqs. 2-6, Table 4)."""
 
     gamma: float = 0.99
-    """Discount gamma of returns."""
+    """Discount gamma of every return: the value target, the actor's objective and the planner's plan scores."""
     lmbda: float = 0.95
     """Return parameter lambda of Eq. 6 (weight of the bootstrap q)."""
     return_form: str = "paper"
@@ -270,8 +270,6 @@ class PlannerConfig:
     """Lower clip sigma_min of the sampling std."""
     std_max: float = 2.0
     """Upper clip sigma_max of the sampling std (also the std of the first iteration)."""
-    gamma: float = 0.99
-    """Discount of the planned return."""
     bf16: bool = False
     """Run the planner's matmuls under bfloat16 autocast (faster on CPUs with AVX-512 bf16)."""
     terminal_value: str = "policy_action"
@@ -281,7 +279,7 @@ class PlannerConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "num_candidates": POSITIVE, "policy_fraction": UNIT_INTERVAL, "num_elites": POSITIVE, "iterations": POSITIVE,
-        "temperature": POSITIVE, "std_min": POSITIVE, "std_max": POSITIVE, "gamma": UNIT_INTERVAL,
+        "temperature": POSITIVE, "std_min": POSITIVE, "std_max": POSITIVE,
     }
 
     def __post_init__(self) -> None:
@@ -301,3 +299,16 @@ class PlannerConfig:
         if self.policy_fraction == 0:
             return 0
         return min(self.num_candidates, max(1, round(self.policy_fraction * self.num_candidates)))
+
+
+def migrate_config_data(data: dict) -> dict:
+    """A run config's JSON data (``{"train": ..., "model": ..., "loss": ..., "planner": ...}``) from an older
+    version in today's fields: ``planner.gamma``, kept equal to ``loss.gamma`` until the discount got one home in
+    :class:`LossConfig`, is dropped, or refused by name where it differed."""
+    planner = dict(data.get("planner", {}))
+    if "gamma" not in planner:
+        return data
+    old, current = planner.pop("gamma"), data.get("loss", {}).get("gamma", LossConfig.gamma)
+    if old != current:
+        raise ConfigError(f"planner.gamma ({old}) differs from loss.gamma ({current}); the discount is loss.gamma now")
+    return {**data, "planner": planner}

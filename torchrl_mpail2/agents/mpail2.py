@@ -14,7 +14,7 @@ from tensordict import TensorDictBase
 
 from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, switches_for
 from torchrl_mpail2.agents.update import MPAIL2Updater
-from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section
+from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section, migrate_config_data
 from torchrl_mpail2.data import Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.modules.factory import make_mpail2_modules
@@ -76,8 +76,6 @@ class MPAIL2Agent:
         if update_precision not in UPDATE_PRECISIONS:
             raise ValueError(f"unknown update_precision {update_precision!r}; choose from {UPDATE_PRECISIONS}")
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
-        if loss.gamma != planner.gamma:
-            raise ValueError(f"loss.gamma ({loss.gamma}) and planner.gamma ({planner.gamma}) must agree")
         if not self.switches.world_model:
             # the model-free ablations act with a single-step policy, as in the paper's baselines
             model = dataclasses.replace(model, horizon=1)
@@ -89,7 +87,7 @@ class MPAIL2Agent:
             self.loss = MPAIL2Loss(self.modules, loss)
             self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=update_precision == "bf16_stop_gradient",
                                          bf16=update_precision == "bf16")
-            self.planner = LatentMPPIPlanner(self.modules, action_spec, planner)
+            self.planner = LatentMPPIPlanner(self.modules, action_spec, planner, gamma=loss.gamma)
         else:
             self.loss, self.planner = DACLoss(self.modules, loss), None
             self.updater = MPAIL2Updater(self.loss)
@@ -143,6 +141,7 @@ class MPAIL2Agent:
         config = state.get("config")
         if not isinstance(config, dict) or not {"train", "model", "loss", "planner"} <= set(config):
             raise ckpt.CheckpointError(f"{path} holds no run config (sections train, model, loss, planner)")
+        config = migrate_config_data(config)
         train = config["train"]
         own_env = env is None
         if own_env:

@@ -8,7 +8,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor, nn
 from torchrl.modules.planners import MPCPlannerBase
 
-from torchrl_mpail2.config import PlannerConfig
+from torchrl_mpail2.config import LossConfig, PlannerConfig
 from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
@@ -57,6 +57,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         cfg (PlannerConfig, optional): Table 4 defaults.
 
     Keyword Args:
+        gamma (float): discount of the plan scores; pass the learner's ``LossConfig.gamma`` (its default here).
         action_key (NestedKey): where the action is written. Defaults to ``"action"``.
         generator (torch.Generator, optional): source of all sampling noise (for reproducible plans).
 
@@ -74,11 +75,14 @@ class LatentMPPIPlanner(MPCPlannerBase):
     """
 
     def __init__(self, modules: MPAIL2Modules, action_spec, cfg: PlannerConfig | None = None, *,
-                 action_key="action", generator: torch.Generator | None = None):
+                 gamma: float = LossConfig.gamma, action_key="action", generator: torch.Generator | None = None):
         check_action_spec(action_spec, modules.action_dim)
         env = LatentWorldModelEnv(modules, action_spec)
         super().__init__(env, action_key=action_key)
         self.cfg = cfg or PlannerConfig()
+        if not 0.0 <= gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {gamma}")
+        self.gamma = gamma
         if self.cfg.num_elites > self.cfg.num_candidates:
             raise ValueError(f"num_elites ({self.cfg.num_elites}) > num_candidates ({self.cfg.num_candidates})")
         self.__dict__["components"] = modules  # the planner acts with the learner's networks; it does not own them
@@ -134,14 +138,14 @@ class LatentMPPIPlanner(MPCPlannerBase):
         for k in range(rewarded):
             zk = dynamics(zk, actions[:, k])
             h_now_next, h_next = reward.project(zk)
-            total = total + cfg.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
+            total = total + self.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
             h_now = h_now_next
         if rewarded < self.horizon:
             last_action = actions[:, rewarded]
         else:
             last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
-        return (total + cfg.gamma ** rewarded * q).view(batch, num)
+        return (total + self.gamma ** rewarded * q).view(batch, num)
 
     # ---- Algorithm 2 ------------------------------------------------------------------------------
     def _planning_networks(self) -> tuple[nn.Module, ...]:

@@ -14,7 +14,7 @@ from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
 from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
-    check_fields, field_kind,
+    check_fields, field_kind, migrate_config_data,
 )
 
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
@@ -138,10 +138,6 @@ class ExperimentConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
 
-    def __post_init__(self) -> None:
-        if self.loss.gamma != self.planner.gamma:
-            raise ConfigError(f"loss.gamma ({self.loss.gamma}) and planner.gamma ({self.planner.gamma}) must agree")
-
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -153,11 +149,13 @@ class ExperimentConfig:
         unknown = sorted(set(data) - {f.name for f in fields(cls)})
         if unknown:
             raise ConfigError(f"unknown config section(s) {unknown}; sections: train, model, loss, planner")
+        data = migrate_config_data(data)
         parts = {}
         for f in fields(cls):
             section_cls = type(getattr(cls(), f.name))
             parts[f.name] = build_section(section_cls, data.get(f.name, {}))
         return cls(**parts)
+
 
 
 def _parse_scalar(text: str, base: type | None):
