@@ -1,6 +1,7 @@
 """Command line: ``python -m torchrl_mpail2.train --preset point_mass [section.field=value ...]``.
 
-Also ``--env``/``--obs`` shortcuts, ``--resume RUN_DIR`` to continue a run (with overrides of
+Also ``--env X`` / ``--obs Y``, shorthand for the overrides ``train.env=X`` / ``train.obs=Y`` (nothing else
+changes: the ``lift_pixels`` preset has the image-sized latent), ``--resume RUN_DIR`` to continue a run (with overrides of
 ``train.total_episodes``, ``train.max_wall_s``, ``train.progress`` or ``train.threads`` only, e.g. to extend
 it), ``--overwrite`` to replace the run in an existing run folder, ``--init-from CKPT --transfer
 all|world-model`` to start from another run's weights, and ``--print-config`` to show the resolved config.
@@ -15,15 +16,12 @@ from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.trainers.config import RESUME_FIELDS, apply_overrides
 from torchrl_mpail2.trainers.presets import PRESETS, preset
 
-#: Table 4: latents are 512 wide with images.
-IMAGE_LATENT_DIM = 512
-
 
 def build_parser(default_preset: str, description: str | None) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=description or __doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", default=default_preset, choices=sorted(PRESETS))
-    p.add_argument("--env", help="environment name (see torchrl_mpail2.envs.ENV_NAMES)")
-    p.add_argument("--obs", help="state | pixels | external_pixels (robosuite)")
+    p.add_argument("--env", help="shorthand for train.env=ENV (see torchrl_mpail2.envs.ENV_NAMES)")
+    p.add_argument("--obs", help="shorthand for train.obs=OBS: state | pixels | external_pixels (robosuite)")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help=f"continue the run in RUN_DIR from its newest complete checkpoint (overrides: {', '.join(RESUME_FIELDS)})")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in train.run_dir")
@@ -44,14 +42,8 @@ def main(argv: list[str] | None = None, default_preset: str = "lift_state", desc
         except ConfigError as error:
             sys.exit(f"--resume {args.resume}: {error}")
     else:
-        cfg = preset(args.preset)
-        if args.env:
-            cfg.train.env = args.env
-        if args.obs:
-            cfg.train.obs = args.obs
-            if args.obs != "state":
-                cfg.model.latent_dim = IMAGE_LATENT_DIM
-        cfg = apply_overrides(cfg, overrides)
+        shorthand = [f"train.{name}={value}" for name, value in (("env", args.env), ("obs", args.obs)) if value]
+        cfg = apply_overrides(preset(args.preset), [*shorthand, *overrides])
         print(cfg.to_json())
         if args.print_config:
             return None

@@ -48,10 +48,10 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded  # noqa: E40
 from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
 
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
+from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
 from torchrl_mpail2.envs import push_task  # noqa: E402, F401  (registers Push / PushMirrored, patches mujoco compat)
 
-OBS_MODES = ("state", "pixels", "external_pixels")
 DEFAULT_HORIZON = {"Lift": 100, "Push": 100, "PushMirrored": 100}
 CONTROL_FREQ_HZ = 20
 IMAGE_SIZE = 64

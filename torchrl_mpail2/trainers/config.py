@@ -12,6 +12,7 @@ import torch
 
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
 from torchrl_mpail2.data.sources import resolve_demo_source
+from torchrl_mpail2.envs.names import OBS_MODES
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
     check_fields, field_kind, migrate_config_data,
@@ -106,6 +107,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if self.obs not in OBS_MODES:
+            raise ConfigError(f"unknown TrainConfig.obs {self.obs!r}; choose from {OBS_MODES}")
         if self.ablation not in ABLATIONS:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         if self.warmup_episodes >= self.total_episodes:

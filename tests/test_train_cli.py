@@ -1,0 +1,33 @@
+import json
+
+import pytest
+
+from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.train import main
+from torchrl_mpail2.trainers.presets import PRESETS, preset
+
+
+def printed_config(capsys, argv):
+    assert main([*argv, "--print-config"]) is None
+    return json.loads(capsys.readouterr().out)
+
+
+def test_env_and_obs_flags_are_overrides_of_their_fields_and_nothing_else(capsys):
+    base = preset("lift_state").to_dict()
+    cfg = printed_config(capsys, ["--preset", "lift_state", "--obs", "pixels", "--env", "robosuite/Push"])
+    assert cfg["train"]["obs"] == "pixels" and cfg["train"]["env"] == "robosuite/Push"
+    assert cfg["model"] == json.loads(json.dumps(base["model"]))  # the latent size stays the preset's
+    # an explicit override given after the shorthand wins, as any later override does
+    assert printed_config(capsys, ["--obs", "pixels", "train.obs=state"])["train"]["obs"] == "state"
+
+
+def test_a_bad_obs_flag_is_refused_by_name():
+    with pytest.raises(ConfigError, match="unknown TrainConfig.obs 'thermal'"):
+        main(["--obs", "thermal", "--print-config"])
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_every_preset_builds_and_the_pixel_presets_have_the_image_latent(name):
+    cfg = preset(name)
+    if cfg.train.obs != "state":
+        assert cfg.model.latent_dim == 512  # Table 4
