@@ -49,6 +49,8 @@ def _import(args: argparse.Namespace) -> None:
     env = make_env(args.env, obs=args.obs)
     demos = load_demo_source(f"{args.format}:{args.path}", env, progress=not args.no_progress)
     demos.header["env_kwargs"] = {"obs": args.obs}
+    if demos.env_id == "custom":  # formats that do not name the env: the one the observations were checked against
+        demos.header["env_id"] = args.env
     save_demos(demos, args.out, overwrite=args.overwrite)
     print(f"wrote {args.out}")
     print(demos.summary())
@@ -80,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     imports = commands.add_parser("import", help="convert another format's recordings (observations only)")
     imports.add_argument("format", choices=sorted(DEMO_SOURCES))
-    imports.add_argument("path", help="the file to import (robosuite_hdf5: robosuite's demo.hdf5)")
+    imports.add_argument("path", help="what to import (robosuite_hdf5: robosuite's demo.hdf5; ted: a folder of "
+                         "td.memmap(PATH) holding TorchRL TED transitions)")
     imports.add_argument("--env", required=True, choices=ENV_NAMES, help="the env the recording is replayed through")
     imports.add_argument("--obs", default="state", help="observation mode of the imported demos")
     imports.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")

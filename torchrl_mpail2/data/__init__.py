@@ -5,6 +5,7 @@ from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos, s
 from torchrl_mpail2.data.demos import DemoFormatError, Demonstrations, demos_from_arrays, observation_keys_of
 from torchrl_mpail2.data.recording import record_demos
 from torchrl_mpail2.data.sources import DEMO_SOURCES, load_demo_source
+from torchrl_mpail2.data.ted import demos_from_ted
 
 __all__ = [
     "DEMO_SOURCES",
@@ -15,6 +16,7 @@ __all__ = [
     "Demonstrations",
     "check_observation_spec",
     "demos_from_arrays",
+    "demos_from_ted",
     "load_demo_source",
     "load_demos",
     "observation_keys_of",

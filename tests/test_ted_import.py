@@ -1,0 +1,69 @@
+"""TED import on data written by TorchRL's own collector and replay buffer."""
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
+from torchrl.envs import TrajCounter
+
+from torchrl_mpail2.data import load_demo_source
+from torchrl_mpail2.data.ted import demos_from_ted
+from torchrl_mpail2.envs import make_env
+
+
+def collected(frames=120):
+    """Random-policy transitions of the point mass as TorchRL's collector writes them (TED, trajectory ids)."""
+    env = make_env("point_mass", seed=0)
+    env.set_seed(0)
+    collector = Collector(env, policy=None, frames_per_batch=frames, total_frames=frames)
+    data = next(iter(collector))
+    collector.shutdown()
+    return env, data
+
+
+def test_collector_output_becomes_episodes_of_t_plus_one_observations():
+    env, data = collected()
+    demos = demos_from_ted(data, ["observation"])
+    ids = data["collector", "traj_ids"]
+    lengths = [int((ids == i).sum()) for i in ids.unique(sorted=True)]
+    assert demos.episode_lengths == lengths and sum(lengths) == data.shape[0]
+    first = demos.episode(0)["observation"]
+    n = lengths[0]
+    assert torch.equal(first[:n], data["observation"][:n]) and torch.equal(first[n], data["next", "observation"][n - 1])
+    assert demos.header["source"]["dropped"] == ["actions", "rewards"]
+
+
+def test_a_memmapped_replay_buffer_imports_through_train_demos(tmp_path):
+    env, data = collected()
+    rb = TensorDictReplayBuffer(storage=LazyMemmapStorage(1000, scratch_dir=tmp_path / "scratch"))
+    rb.extend(data)
+    rb[:].memmap(tmp_path / "ted", copy_existing=True)  # the buffer's rows in insertion order
+    demos = load_demo_source(f"ted:{tmp_path / 'ted'}", env)
+    assert demos.num_steps == data.shape[0]
+    assert demos.observation_keys == ["observation"]
+    from torchrl_mpail2.data import load_demos
+    from torchrl_mpail2.demos import main
+
+    assert main(["import", "ted", str(tmp_path / "ted"), "--env", "point_mass", "--out", str(tmp_path / "demos")]) == 0
+    saved = load_demos(tmp_path / "demos", env)
+    assert saved.env_id == "point_mass" and saved.episode_lengths == demos.episode_lengths
+
+
+def test_without_an_id_key_episodes_end_at_done_and_disorder_is_refused():
+    _, data = collected()
+    plain = data.exclude("collector")
+    assert demos_from_ted(plain, ["observation"]).episode_lengths == demos_from_ted(data, ["observation"]).episode_lengths
+    shuffled = plain[torch.randperm(plain.shape[0], generator=torch.Generator().manual_seed(0))]
+    with pytest.raises(ValueError, match="differs from the next step's observation"):
+        demos_from_ted(shuffled, ["observation"])
+    with pytest.raises(KeyError, match=r"TED data has no .*velocity"):
+        demos_from_ted(plain, ["velocity"])
+    with pytest.raises(FileNotFoundError, match="meta.json"):
+        load_demo_source("ted:/nonexistent/folder", make_env("point_mass"))
+
+
+def test_trajcounter_ids_are_found_too():
+    env = make_env("point_mass", seed=0).append_transform(TrajCounter())
+    rollout = env.rollout(30, break_when_any_done=False)
+    assert demos_from_ted(rollout, ["observation"]).num_steps == 30
+    assert isinstance(rollout, TensorDict)

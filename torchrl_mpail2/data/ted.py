@@ -1,0 +1,103 @@
+r"""Observation-only demonstrations from TorchRL's TED format (the layout of its collectors, replay buffers and
+``torchrl.data.datasets``: ``LeRobotExperienceReplay``, ``MinariExperienceReplay``, ``OpenXExperienceReplay``, ...).
+
+A TED batch holds transitions: observations at the root, the next ones under ``"next"``, and ``"action"``,
+``("next", "reward")`` and done flags beside them. Episodes are told apart by an episode-id key (``"episode"`` in
+the datasets, ``("collector", "traj_ids")`` in collector output) or, without one, by ``("next", "done")``. Each
+episode of ``T`` transitions becomes its ``T + 1`` observations; actions and rewards are dropped.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+
+from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.envs.keys import observation_keys_of
+
+__all__ = ["EPISODE_ID_KEYS", "demos_from_ted", "import_ted"]
+
+#: Episode-id keys looked for, in order: TorchRL's datasets, its collectors, ``TrajCounter``'s default.
+EPISODE_ID_KEYS: tuple[NestedKey, ...] = ("episode", ("collector", "traj_ids"), "traj_count")
+
+
+def _episode_slices(data: TensorDictBase, episode_key: NestedKey | None) -> list[slice]:
+    """Consecutive runs of one episode id (or up to each ``("next", "done")``) as slices of the flat batch."""
+    n = data.shape[0]
+    if episode_key is not None:
+        ids = data.get(episode_key).reshape(n)
+        starts = [0, *(torch.nonzero(ids[1:] != ids[:-1]).flatten() + 1).tolist()]
+    else:
+        done = data.get(("next", "done"), None)
+        if done is None:
+            return [slice(0, n)]
+        ends = (torch.nonzero(done.reshape(n)).flatten() + 1).tolist()
+        starts = [0, *[e for e in ends if e < n]]
+    return [slice(a, b) for a, b in zip(starts, [*starts[1:], n])]
+
+
+def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env_id: str = "custom",
+                   episode_key: NestedKey | None = None, source: str | None = None) -> Demonstrations:
+    """Groups a TED batch by episode into observation-only demonstrations.
+
+    Args:
+        data (TensorDictBase): transitions ``[N]`` (or ``[B, T]``, flattened row by row as collectors lay them out)
+            with each key of ``observation_keys`` at the root and under ``"next"``.
+        observation_keys (sequence of str): the observation keys to keep (e.g. the env's).
+
+    Keyword Args:
+        env_id (str): recorded in the demos. Defaults to ``"custom"``.
+        episode_key (NestedKey, optional): the episode-id key; by default the first of :data:`EPISODE_ID_KEYS`
+            present, else episodes end at ``("next", "done")``.
+        source (str, optional): what the header's ``source`` names (a path or a dataset id).
+
+    Raises:
+        KeyError: an observation key missing at the root or under ``"next"``, or a missing ``episode_key``.
+        ValueError: an episode whose transitions do not follow one another (``next`` of step t differs from the
+            observation of step t + 1: out of time order, or episodes interleaved without an id key).
+
+    Examples:
+        >>> obs = torch.arange(12.0).reshape(6, 2)
+        >>> td = TensorDict({"observation": obs[:-1], ("next", "observation"): obs[1:],
+        ...                  "episode": torch.tensor([0, 0, 0, 1, 1])}, [5])
+        >>> td["observation"][3], td["next", "observation"][3] = obs[4], obs[5]  # episode 1 starts afresh
+        >>> demos_from_ted(td, ["observation"]).episode_lengths
+        [3, 2]
+    """
+    if data.batch_dims == 0:
+        raise ValueError("a TED batch needs at least one batch dimension (transitions)")
+    data = data.reshape(-1)
+    for key in observation_keys:
+        for full in (key, ("next", key)):
+            if data.get(full, None) is None:
+                raise KeyError(f"TED data has no {full!r}; present: {sorted(map(str, data.keys(True, True)))}")
+    if episode_key is None:
+        episode_key = next((k for k in EPISODE_ID_KEYS if data.get(k, None) is not None), None)
+    elif data.get(episode_key, None) is None:
+        raise KeyError(f"TED data has no episode key {episode_key!r}")
+    episodes = []
+    for i, part in enumerate(_episode_slices(data, episode_key)):
+        ep = data[part]
+        for key in observation_keys:
+            if not torch.equal(ep.get(("next", key))[:-1], ep.get(key)[1:]):
+                raise ValueError(f"episode {i} ({part.start}..{part.stop - 1}) of the TED data: ('next', {key!r}) of a "
+                                 "step differs from the next step's observation (transitions out of order, or "
+                                 "episodes interleaved without an episode-id key)")
+        episodes.append({key: torch.cat([ep.get(key), ep.get(("next", key))[-1:]]) for key in observation_keys})
+    demos = demos_from_arrays(episodes, env_id=env_id)
+    demos.header["source"] = {"format": "ted", "from": source, "episode_key": None if episode_key is None else
+                              str(episode_key), "dropped": ["actions", "rewards"]}
+    return demos
+
+
+def import_ted(path: str | Path, env, *, progress: bool = False) -> Demonstrations:
+    """Demonstrations from a TED tensordict saved with ``td.memmap(path)`` (``train.demos=ted:PATH``), keeping the
+    observation keys of ``env``."""
+    path = Path(path)
+    if not (path / "meta.json").is_file():
+        raise FileNotFoundError(f"{path}: not a memory-mapped tensordict (no meta.json); save one with td.memmap(path)")
+    data = TensorDict.load_memmap(path)
+    return demos_from_ted(data, observation_keys_of(env), source=str(path.resolve()))
