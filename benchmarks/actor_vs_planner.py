@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from torchrl_mpail2.objectives._imagination import ensemble_estimate, frozen, imagined_lambda_return
+from torchrl_mpail2.objectives.imagination import ensemble_estimate, frozen, imagined_lambda_return
 from torchrl_mpail2.trainers import MPAIL2Trainer
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import ExperimentConfig

@@ -133,6 +133,9 @@ class MPAIL2Agent:
             with_optimizers (bool): restore the optimisers too (to go on training). Defaults to False.
             device (torch.device or str): where to load the networks (default ``"cpu"``, wherever they were saved).
 
+        Returns:
+            MPAIL2Agent: with ``run_config``, the run's config as saved (a dict of sections).
+
         Raises:
             CheckpointError: the checkpoint is missing or damaged (the message names the file).
         """
@@ -158,4 +161,5 @@ class MPAIL2Agent:
             if own_env:
                 env.close()
         agent.load_state_dict(state, with_optimizers=with_optimizers)
+        agent.run_config = config
         return agent

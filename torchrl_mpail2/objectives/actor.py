@@ -13,7 +13,7 @@ from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives._imagination import _checked_form, ensemble_estimate, frozen, imagined_lambda_return
+from torchrl_mpail2.objectives.imagination import _checked_form, ensemble_estimate, frozen, imagined_lambda_return
 
 
 class MultiStepActorLoss(MPAIL2LossBase):

@@ -13,7 +13,7 @@ from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
-from torchrl_mpail2.objectives._imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
 
@@ -49,7 +49,9 @@ class LatentMPPIPlanner(MPCPlannerBase):
     ``DETERMINISTIC`` (``set_exploration_type(ExplorationType.DETERMINISTIC)``) it is the mean.
 
     Writes ``action`` ``[*B, A]`` (projected on the action spec), ``"plan"`` ``[*B, H, A]`` and
-    ``"policy_influence"`` ``[*B, 1]``: the share of the final elite weight held by policy samples.
+    ``"policy_influence"`` ``[*B, 1]``: the share of the final elite weight held by policy samples. With
+    ``record_elites = True`` also ``"elite_plans"`` ``[*B, K, H, A]`` and ``"elite_weights"`` ``[*B, K]`` of the last
+    iteration (for pictures of planning; off by default).
 
     Args:
         modules (MPAIL2Modules): the learned components.
@@ -93,6 +95,8 @@ class LatentMPPIPlanner(MPCPlannerBase):
         self.extra_out_shapes = {"plan": (self.horizon, self.action_dim), "policy_influence": (1,)}
         self._prev_mean: Tensor | None = None
         self.last_stats: dict[str, Tensor] = {}
+        self.record_elites = False
+        self._last_elites: tuple[Tensor, Tensor] | None = None
 
     # ---- warm-start state -------------------------------------------------------------------------
     def reset(self) -> None:
@@ -183,6 +187,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
         self.last_stats = {k: v.clone() for k, v in self.last_stats.items()}
         td.set("plan", plan.reshape(*batch_shape, self.horizon, self.action_dim))
         td.set("policy_influence", influence.reshape(*batch_shape, 1))
+        if self.record_elites:
+            elites, weights = (x.clone() for x in self._last_elites)
+            td.set("elite_plans", elites.reshape(*batch_shape, *elites.shape[1:]))
+            td.set("elite_weights", weights.reshape(*batch_shape, weights.shape[-1]))
         return plan[:, 0].reshape(*batch_shape, self.action_dim)
 
     def _optimise(self, flat: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
@@ -218,6 +226,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
                 mean = (w * elites).sum(1)
                 std = (w * (elites - mean.unsqueeze(1)).pow(2)).sum(1).sqrt().clamp(cfg.std_min, cfg.std_max)
         influence = (weights * (elite_index >= num_gauss)).sum(-1, keepdim=True)
+        self._last_elites = (elites, weights) if self.record_elites else None
         plan = mean if is_deterministic() else (mean + std * self._noise(mean.shape, mean)).clamp(-1.0, 1.0)
         self.last_stats = {"policy_influence": influence.mean(), "elite_return": returns.gather(1, elite_index).mean(),
                            "plan_std": std.mean(),

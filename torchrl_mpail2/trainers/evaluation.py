@@ -35,7 +35,7 @@ def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
 
 @torch.no_grad()
 def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, videos: list | None = None,
-                      video_episodes: int = 0) -> list[dict[str, float]]:
+                      video_episodes: int = 0, rollouts: list | None = None) -> list[dict[str, float]]:
     """Plays one deterministic episode per seed with ``actor``; returns each :func:`episode_outcome`.
 
     Args:
@@ -48,6 +48,7 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
     Keyword Args:
         videos (list, optional): receives the frames ``[T + 1, H, W, 3]`` uint8 (``env.render()`` after the reset
             and after each step) of the first ``video_episodes`` episodes.
+        rollouts (list, optional): receives each episode's rollout tensordict ``[T]``.
     """
     saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
     device = next(iter(planner.components.parameters())).device if planner is not None else None
@@ -69,6 +70,8 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
                 else:
                     episode = env.rollout(MAX_EVAL_STEPS, actor, break_when_any_done=True)
                 outcomes.append(episode_outcome(episode))
+                if rollouts is not None:
+                    rollouts.append(episode)
     finally:
         if planner is not None:
             planner.set_extra_state(saved[0])

@@ -1,0 +1,11 @@
+"""``python -m torchrl_mpail2.diagnostics plan_pictures CKPT [...]``: the diagnostics' command line."""
+import sys
+
+from torchrl_mpail2.diagnostics import plan_pictures
+
+COMMANDS = {"plan_pictures": plan_pictures.main}
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2 or sys.argv[1] not in COMMANDS:
+        sys.exit(f"usage: python -m torchrl_mpail2.diagnostics {{{','.join(COMMANDS)}}} ... (commands: {sorted(COMMANDS)})")
+    COMMANDS[sys.argv[1]](sys.argv[2:])

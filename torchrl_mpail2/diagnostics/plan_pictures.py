@@ -1,0 +1,160 @@
+r"""Pictures of planning, after the paper's figure of predicted plans: at a few steps of each evaluation episode,
+the planner's elite plans and its chosen plan are rolled out through the latent dynamics :math:`f_\psi` from
+:math:`z_t = e_\omega(o_t)` and decoded by a :class:`~torchrl_mpail2.diagnostics.LatentProbe` (fitted on the side
+to the episodes' own latents) into positions in a plane, beside the path the agent actually took."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+
+from torchrl_mpail2.diagnostics.latent_probe import LatentProbe, fit_latent_probe
+from torchrl_mpail2.objectives.imagination import rollout_latents
+from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds
+
+__all__ = ["PLANE_POSITIONS", "draw_plan_pictures", "plane_position"]
+
+USAGE = """python -m torchrl_mpail2.diagnostics plan_pictures RUN/checkpoints/episode_N [--episodes 3] [--out DIR]
+
+Draws the planner's elite plans and its chosen plan on the run's first fixed evaluation episodes
+(``train.eval_seed + i``); default output folder: the checkpoint's ``plan_pictures/``."""
+
+#: Where a position in the drawing plane is read from the observations: robosuite's end-effector x, y (the first
+#: entries of ``"proprio"``: the table plane), the point mass's x, y.
+PLANE_POSITIONS = {"robosuite": ("proprio", (0, 2)), "point_mass": ("observation", (0, 2))}
+
+
+def plane_position(env_name: str) -> tuple[str, tuple[int, int]]:
+    """``(key, (start, stop))`` of :data:`PLANE_POSITIONS` for an env name of :data:`~torchrl_mpail2.envs.ENV_NAMES`."""
+    family = "robosuite" if env_name.startswith("robosuite/") else env_name
+    if family not in PLANE_POSITIONS:
+        raise ValueError(f"no plane position is known for {env_name!r} (known: robosuite/*, point_mass); "
+                         "pass position_key and position_slice")
+    return PLANE_POSITIONS[family]
+
+
+@torch.no_grad()
+def decoded_paths(agent, probe: LatentProbe, z: torch.Tensor, plans: torch.Tensor) -> torch.Tensor:
+    """``plans [K, H, A]`` from one latent ``z [Z]`` -> decoded positions ``[K, H + 1, D]`` (the start first)."""
+    latents = rollout_latents(agent.modules.dynamics.module, z.expand(plans.shape[0], -1), plans)
+    return probe(latents).transpose(0, 1)
+
+
+def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[int, int], panels: int, title: str,
+                  path: Path, min_half_width: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = episode.shape[0]
+    actual = torch.cat([episode[key], episode["next", key][-1:]])[:, cols[0]:cols[1]]
+    chosen_steps = sorted({round(i * (steps - 1) / max(panels - 1, 1)) for i in range(panels)})
+    fig, axes = plt.subplots(1, len(chosen_steps), figsize=(3.2 * len(chosen_steps), 3.4), squeeze=False)
+    encoder = agent.modules.encoder
+    for ax, t in zip(axes[0], chosen_steps):
+        z = encoder.encode(episode[t:t + 1])[0]
+        elites, weights = episode["elite_plans"][t], episode["elite_weights"][t]
+        paths = decoded_paths(agent, probe, z, elites)
+        chosen = decoded_paths(agent, probe, z, episode["plan"][t][None])[0]
+        ax.plot(actual[:, 0], actual[:, 1], color="0.85", lw=1)
+        for k in weights.argsort().tolist():  # heaviest drawn last, on top
+            ax.plot(paths[k, :, 0], paths[k, :, 1], color="tab:blue", lw=0.8,
+                    alpha=float(0.1 + 0.8 * weights[k] / weights.max()))
+        horizon = chosen.shape[0] - 1
+        ax.plot(actual[t:t + horizon + 1, 0], actual[t:t + horizon + 1, 1], "k--", lw=1.2)
+        ax.plot(chosen[:, 0], chosen[:, 1], color="tab:red", lw=2)
+        ax.plot(actual[t, 0], actual[t, 1], "ko", ms=4)
+        ax.set_title(f"step {t}", fontsize=9)
+        # each panel frames its own plans (the whole path in grey runs off where it is far larger)
+        shown = torch.cat([paths.reshape(-1, paths.shape[-1]), chosen, actual[t:t + horizon + 1]])
+        low, high = shown.min(0).values, shown.max(0).values
+        half = ((high - low).max() * 0.6).clamp_min(min_half_width)
+        centre = (low + high) / 2
+        ax.set_xlim(float(centre[0] - half), float(centre[0] + half))
+        ax.set_ylim(float(centre[1] - half), float(centre[1] + half))
+        ax.set_aspect("equal", adjustable="box")
+        ax.tick_params(labelsize=7)
+    axes[0][0].set_xlabel("x")
+    axes[0][0].set_ylabel("y")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, position_key: str,
+                       position_slice: tuple[int, int], panels: int = 6, probe_steps: int = 1000) -> dict:
+    """Plays one evaluation episode per seed (deterministic, planner noise seeded per episode, as the run's own
+    evaluations), fits a probe from the latents of every visited observation to ``position_key[slice]``, and writes
+    ``out_dir/plans_episode_<i>.png`` (``panels`` steps each) and ``out_dir/plan_pictures.json``.
+
+    Returns:
+        dict: ``seeds``, per-episode ``success_any_step``, the probe's ``train_mae`` / ``held_out_mae`` /
+        ``held_out_r2`` (how far the pictures can be trusted) and the ``files`` written.
+    """
+    planner = agent.planner
+    if planner is None or agent.policy is not planner:
+        raise ValueError("the agent does not act with the latent planner (a [-P] or model-free ablation): "
+                         "there are no plans to draw")
+    if not seeds:
+        raise ValueError("no evaluation seeds: nothing to draw")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rollouts: list[TensorDictBase] = []
+    planner.record_elites = True
+    try:
+        evaluate_episodes(env, planner, seeds, planner, rollouts=rollouts)
+    finally:
+        planner.record_elites = False
+    a, b = position_slice
+    with torch.no_grad():
+        z = torch.cat([agent.modules.encoder.encode(ep) for ep in rollouts])
+    y = torch.cat([ep[position_key][..., a:b] for ep in rollouts])
+    probe, stats = fit_latent_probe(z, y, steps=probe_steps)
+    files, successes = [], []
+    for i, (seed, episode) in enumerate(zip(seeds, rollouts)):
+        success = episode_outcome(episode)["success_any_step"]
+        successes.append(success)
+        path = out_dir / f"plans_episode_{i:02d}.png"
+        title = (f"episode {i} (env seed {seed}, success {success:.0f}): elite plans (blue, darker = heavier), chosen "
+                 f"plan (red), what happened next (black dashed); probe held-out error {stats['held_out_mae']:.3g}")
+        _draw_episode(agent, probe, episode, position_key, (a, b), panels, title, path,
+                      min_half_width=float(4 * stats["held_out_mae"]) + 1e-3)
+        files.append(path.name)
+    summary = {"seeds": list(seeds), "success_any_step": successes, "position": f"{position_key}[{a}:{b}]",
+               **{f"probe_{k}": v for k, v in stats.items()}, "files": files}
+    (out_dir / "plan_pictures.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def main(argv: list[str] | None = None) -> dict:
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.envs import make_env
+    from torchrl_mpail2.trainers.config import TrainConfig
+
+    p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics plan_pictures", description=USAGE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--episodes", type=int, default=3)
+    p.add_argument("--panels", type=int, default=6, help="steps drawn per episode")
+    p.add_argument("--out", type=Path, default=None)
+    args = p.parse_args(argv)
+    if args.episodes < 1 or args.panels < 1:
+        raise SystemExit("--episodes and --panels must be >= 1")
+    agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
+    train = agent.run_config["train"]
+    env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
+    key, cols = plane_position(train["env"])
+    try:
+        first_seed = train.get("eval_seed", TrainConfig.eval_seed)  # runs before the fixed evaluation lack it
+        summary = draw_plan_pictures(agent, env, evaluation_seeds(first_seed, args.episodes),
+                                     args.out or args.checkpoint / "plan_pictures", position_key=key,
+                                     position_slice=cols, panels=args.panels)
+    finally:
+        env.close()
+    print(json.dumps(summary, indent=2))
+    return summary
+
