@@ -94,7 +94,8 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
 
     Returns:
         dict: ``seeds``, per-episode ``success_any_step``, the probe's ``train_mae`` / ``held_out_mae`` /
-        ``held_out_r2`` (how far the pictures can be trusted) and the ``files`` written.
+        ``held_out_r2`` (how far the pictures can be trusted), ``num_elites`` K and ``elite_ess_mean`` (the effective
+        number of elites, averaged over the steps) and the ``files`` written.
     """
     planner = agent.planner
     if planner is None or agent.policy is not planner:
@@ -125,8 +126,11 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
         _draw_episode(agent, probe, episode, position_key, (a, b), panels, title, path,
                       min_half_width=float(4 * stats["held_out_mae"]) + 1e-3)
         files.append(path.name)
+    weights = torch.cat([ep["elite_weights"] for ep in rollouts])
     summary = {"seeds": list(seeds), "success_any_step": successes, "position": f"{position_key}[{a}:{b}]",
-               **{f"probe_{k}": v for k, v in stats.items()}, "files": files}
+               **{f"probe_{k}": v for k, v in stats.items()}, "num_elites": weights.shape[-1],
+               # effective number of elites 1 / sum w^2 (K when the weights are flat, 1 when one plan wins)
+               "elite_ess_mean": float(weights.pow(2).sum(-1).reciprocal().mean()), "files": files}
     (out_dir / "plan_pictures.json").write_text(json.dumps(summary, indent=2))
     return summary
 
