@@ -250,6 +250,8 @@ class LossConfig:
 
 #: Forms of the planner's terminal value (:attr:`PlannerConfig.terminal_value`).
 TERMINAL_VALUES = ("policy_action", "plan_last_action")
+#: How the MPPI temperature is measured (``PlannerConfig.temperature_scale``).
+TEMPERATURE_SCALES = ("absolute", "elite_spread")
 
 
 @dataclass
@@ -266,6 +268,9 @@ class PlannerConfig:
     """Number J of MPPI iterations."""
     temperature: float = 2.0
     """Softmax temperature eta of the elite weights."""
+    temperature_scale: str = "absolute"
+    """``absolute`` (Algorithm 2: eta in return units) or ``elite_spread`` (eta times the elites' return standard
+    deviation per planning step, so the weights ignore the reward's scale; not in the paper, not measured yet)."""
     std_min: float = 0.05
     """Lower clip sigma_min of the sampling std."""
     std_max: float = 2.0
@@ -290,6 +295,9 @@ class PlannerConfig:
             )
         if self.terminal_value not in TERMINAL_VALUES:
             raise ConfigError(f"unknown PlannerConfig.terminal_value {self.terminal_value!r}; choose from {TERMINAL_VALUES}")
+        if self.temperature_scale not in TEMPERATURE_SCALES:
+            raise ConfigError(f"unknown PlannerConfig.temperature_scale {self.temperature_scale!r}; "
+                              f"choose from {TEMPERATURE_SCALES}")
         if self.std_min > self.std_max:
             raise ConfigError(f"PlannerConfig.std_min ({self.std_min}) must not exceed std_max ({self.std_max})")
 
