@@ -49,7 +49,7 @@ def test_the_probe_recovers_a_linear_readout_and_refuses_bad_shapes():
 def test_pictures_are_drawn_per_episode_with_the_probe_quality(tmp_path):
     env, agent = point_mass_agent()
     key, cols = plane_position("point_mass")
-    summary = draw_plan_pictures(agent, env, [100, 101], tmp_path, position_key=key, position_slice=cols, panels=3,
+    summary = draw_plan_pictures(agent, env, [100, 101], tmp_path, position_key=key, position_columns=cols, panels=3,
                                  probe_steps=200)
     assert summary["files"] == ["plans_episode_00.png", "plans_episode_01.png"]
     assert all((tmp_path / f).stat().st_size > 10_000 for f in summary["files"])
@@ -61,10 +61,13 @@ def test_pictures_are_drawn_per_episode_with_the_probe_quality(tmp_path):
 def test_without_a_planner_or_a_known_plane_there_is_nothing_to_draw(tmp_path):
     env, agent = point_mass_agent(ablation="P")
     with pytest.raises(ValueError, match="does not act with the latent planner"):
-        draw_plan_pictures(agent, env, [0], tmp_path, position_key="observation", position_slice=(0, 2))
+        draw_plan_pictures(agent, env, [0], tmp_path, position_key="observation", position_columns=(0, 1))
     with pytest.raises(ValueError, match="no plane position is known for 'gym/Hopper-v5'"):
         plane_position("gym/Hopper-v5")
-    assert plane_position("robosuite/Push") == ("proprio", (0, 2))
+    assert plane_position("robosuite/Push") == ("proprio", (0, 1))
+    assert plane_position("robosuite/Lift", "xz") == ("proprio", (0, 2))
+    with pytest.raises(ValueError, match="plane 'xz' is not known for 'point_mass'"):
+        plane_position("point_mass", "xz")
 
 
 def test_the_command_line_draws_a_checkpoint_of_a_run(tmp_path):

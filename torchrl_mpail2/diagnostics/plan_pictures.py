@@ -22,18 +22,24 @@ USAGE = """python -m torchrl_mpail2.diagnostics plan_pictures RUN/checkpoints/ep
 Draws the planner's elite plans and its chosen plan on the run's first fixed evaluation episodes
 (``train.eval_seed + i``); default output folder: the checkpoint's ``plan_pictures/``."""
 
-#: Where a position in the drawing plane is read from the observations: robosuite's end-effector x, y (the first
-#: entries of ``"proprio"``: the table plane), the point mass's x, y.
-PLANE_POSITIONS = {"robosuite": ("proprio", (0, 2)), "point_mass": ("observation", (0, 2))}
+#: Where positions are read from the observations: ``(key, {plane: (column, column)})``. robosuite: the
+#: end-effector's x, y, z, the first entries of ``"proprio"`` (``xy`` is the table plane, ``xz`` shows lifting);
+#: the point mass: its x, y.
+PLANE_POSITIONS = {"robosuite": ("proprio", {"xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}),
+                   "point_mass": ("observation", {"xy": (0, 1)})}
 
 
-def plane_position(env_name: str) -> tuple[str, tuple[int, int]]:
-    """``(key, (start, stop))`` of :data:`PLANE_POSITIONS` for an env name of :data:`~torchrl_mpail2.envs.ENV_NAMES`."""
+def plane_position(env_name: str, plane: str = "xy") -> tuple[str, tuple[int, int]]:
+    """``(key, (column, column))`` of :data:`PLANE_POSITIONS` for an env name of
+    :data:`~torchrl_mpail2.envs.ENV_NAMES` and a plane (``xy``, ``xz`` or ``yz``)."""
     family = "robosuite" if env_name.startswith("robosuite/") else env_name
     if family not in PLANE_POSITIONS:
         raise ValueError(f"no plane position is known for {env_name!r} (known: robosuite/*, point_mass); "
-                         "pass position_key and position_slice")
-    return PLANE_POSITIONS[family]
+                         "pass position_key and position_columns")
+    key, planes = PLANE_POSITIONS[family]
+    if plane not in planes:
+        raise ValueError(f"plane {plane!r} is not known for {env_name!r}; choose from {sorted(planes)}")
+    return key, planes[plane]
 
 
 @torch.no_grad()
@@ -44,14 +50,14 @@ def decoded_paths(agent, probe: LatentProbe, z: torch.Tensor, plans: torch.Tenso
 
 
 def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[int, int], panels: int, title: str,
-                  path: Path, min_half_width: float) -> None:
+                  path: Path, min_half_width: float, labels: tuple[str, str]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     steps = episode.shape[0]
-    actual = torch.cat([episode[key], episode["next", key][-1:]])[:, cols[0]:cols[1]]
+    actual = torch.cat([episode[key], episode["next", key][-1:]])[:, list(cols)]
     chosen_steps = sorted({round(i * (steps - 1) / max(panels - 1, 1)) for i in range(panels)})
     fig, axes = plt.subplots(1, len(chosen_steps), figsize=(3.2 * len(chosen_steps), 3.4), squeeze=False)
     encoder = agent.modules.encoder
@@ -78,8 +84,8 @@ def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[i
         ax.set_ylim(float(centre[1] - half), float(centre[1] + half))
         ax.set_aspect("equal", adjustable="box")
         ax.tick_params(labelsize=7)
-    axes[0][0].set_xlabel("x")
-    axes[0][0].set_ylabel("y")
+    axes[0][0].set_xlabel(labels[0])
+    axes[0][0].set_ylabel(labels[1])
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -87,9 +93,11 @@ def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[i
 
 
 def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, position_key: str,
-                       position_slice: tuple[int, int], panels: int = 6, probe_steps: int = 1000) -> dict:
+                       position_columns: tuple[int, int], panels: int = 6, probe_steps: int = 1000,
+                       labels: tuple[str, str] = ("x", "y")) -> dict:
     """Plays one evaluation episode per seed (deterministic, planner noise seeded per episode, as the run's own
-    evaluations), fits a probe from the latents of every visited observation to ``position_key[slice]``, and writes
+    evaluations), fits a probe from the latents of every visited observation to two columns of ``position_key``
+    (``position_columns``, drawn as the horizontal and vertical axes), and writes
     ``out_dir/plans_episode_<i>.png`` (``panels`` steps each) and ``out_dir/plan_pictures.json``.
 
     Returns:
@@ -111,10 +119,10 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
         evaluate_episodes(env, planner, seeds, planner, rollouts=rollouts)
     finally:
         planner.record_elites = False
-    a, b = position_slice
+    cols = list(position_columns)
     with torch.no_grad():
         z = torch.cat([agent.modules.encoder.encode(ep) for ep in rollouts])
-    y = torch.cat([ep[position_key][..., a:b] for ep in rollouts])
+    y = torch.cat([ep[position_key][..., cols] for ep in rollouts])
     probe, stats = fit_latent_probe(z, y, steps=probe_steps)
     files, successes = [], []
     for i, (seed, episode) in enumerate(zip(seeds, rollouts)):
@@ -123,11 +131,11 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
         path = out_dir / f"plans_episode_{i:02d}.png"
         title = (f"episode {i} (env seed {seed}, success {success:.0f}): elite plans (blue, darker = heavier), chosen "
                  f"plan (red), what happened next (black dashed); probe held-out error {stats['held_out_mae']:.3g}")
-        _draw_episode(agent, probe, episode, position_key, (a, b), panels, title, path,
-                      min_half_width=float(4 * stats["held_out_mae"]) + 1e-3)
+        _draw_episode(agent, probe, episode, position_key, tuple(cols), panels, title, path,
+                      min_half_width=float(4 * stats["held_out_mae"]) + 1e-3, labels=labels)
         files.append(path.name)
     weights = torch.cat([ep["elite_weights"] for ep in rollouts])
-    summary = {"seeds": list(seeds), "success_any_step": successes, "position": f"{position_key}[{a}:{b}]",
+    summary = {"seeds": list(seeds), "success_any_step": successes, "position": f"{position_key}[{cols[0]}, {cols[1]}]",
                **{f"probe_{k}": v for k, v in stats.items()}, "num_elites": weights.shape[-1],
                # effective number of elites 1 / sum w^2 (K when the weights are flat, 1 when one plan wins)
                "elite_ess_mean": float(weights.pow(2).sum(-1).reciprocal().mean()), "files": files}
@@ -144,6 +152,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("checkpoint", type=Path)
     p.add_argument("--episodes", type=int, default=3)
     p.add_argument("--panels", type=int, default=6, help="steps drawn per episode")
+    p.add_argument("--plane", default="xy", help="xy (the table plane), xz or yz for robosuite; xy for the point mass")
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     if args.episodes < 1 or args.panels < 1:
@@ -151,12 +160,12 @@ def main(argv: list[str] | None = None) -> dict:
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
     train = agent.run_config["train"]
     env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
-    key, cols = plane_position(train["env"])
+    key, cols = plane_position(train["env"], args.plane)
     try:
         first_seed = train.get("eval_seed", TrainConfig.eval_seed)  # runs before the fixed evaluation lack it
         summary = draw_plan_pictures(agent, env, evaluation_seeds(first_seed, args.episodes),
                                      args.out or args.checkpoint / "plan_pictures", position_key=key,
-                                     position_slice=cols, panels=args.panels)
+                                     position_columns=cols, panels=args.panels, labels=tuple(args.plane))
     finally:
         env.close()
     print(json.dumps(summary, indent=2))
