@@ -49,6 +49,14 @@ class TrainConfig:
     """Training episodes (warm-up included)."""
     warmup_episodes: int = 2
     """Episodes of uniformly random actions before learning starts."""
+    num_envs: int = 1
+    """Environments collected from at once (the planner acts on all in one batched call); each batch of ``num_envs``
+    episodes is followed by ``utd`` updates per collected step, so the updates per frame stay as configured.
+    Evaluations and checkpoints fall due when a batch steps over their multiple; a run may end up to
+    ``num_envs - 1`` episodes past ``total_episodes``."""
+    parallel_envs: bool = False
+    """With ``num_envs > 1``: one worker process per environment (TorchRL ``ParallelEnv``) instead of all in the
+    training process (``SerialEnv``)."""
     max_wall_s: float | None = None
     """Stop after this many seconds of training (checked after each episode); None: no time limit."""
     utd: float = 1.0
@@ -98,7 +106,7 @@ class TrainConfig:
     optimiser). See docs/results/speed_notes.md for speed and closeness."""
 
     RANGES: ClassVar[dict[str, Range]] = {
-        "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
+        "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
         "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
         "eval_episodes": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
         "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,

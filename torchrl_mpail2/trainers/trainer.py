@@ -2,6 +2,7 @@
 a TensorDictReplayBuffer with a SliceSampler, a demonstration buffer and the per-stage updater."""
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -13,7 +14,6 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDict
-from torchrl.collectors import Collector
 from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import SliceSampler
 from tqdm.auto import tqdm
@@ -22,6 +22,7 @@ from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
+from torchrl_mpail2.trainers.collection import crossed_multiple, make_collector, split_episodes
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
@@ -80,11 +81,11 @@ class MPAIL2Trainer:
         if env_fn is None:
             from torchrl_mpail2.envs import make_env
 
-            def env_fn(seed=t.seed):
-                return make_env(t.env, obs=t.obs, seed=seed, device=t.device, **(t.env_kwargs or {}))
+            # a partial of a module-level function: picklable, so that ParallelEnv workers can build it
+            env_fn = functools.partial(make_env, t.env, obs=t.obs, device=t.device, **(t.env_kwargs or {}))
         self.env_fn = env_fn
         self.run_dir = Path(t.run_dir)
-        self.env = env_fn()
+        self.env = env_fn(seed=t.seed)
         if t.video:
             check_can_film(self.env)
         self.demos = demos if demos is not None else load_or_record_demos(cfg, self.env, env_fn)
@@ -119,7 +120,8 @@ class MPAIL2Trainer:
 
     def _make_replay(self, scratch: Path | None, horizon: int) -> TensorDictReplayBuffer:
         t = self.cfg.train
-        capacity = t.replay_size or t.total_episodes * self._episode_bound()
+        # a batch of num_envs episodes may step past total_episodes by up to num_envs - 1 episodes
+        capacity = t.replay_size or (t.total_episodes + t.num_envs - 1) * self._episode_bound()
         if scratch is not None:
             # the live storage is a working copy; what survives a crash is the copy in checkpoints/last
             shutil.rmtree(scratch, ignore_errors=True)
@@ -264,21 +266,22 @@ class MPAIL2Trainer:
         self.run_folder.release()
 
     # ---- the loop --------------------------------------------------------------------------------
-    def _collector(self) -> Collector:
-        env = self.env_fn(seed=self.cfg.train.seed + self.counters["episodes"])
-        return Collector(env, self.agent.actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=1, traj_format="padded")
+    def _collector(self):
+        t = self.cfg.train
+        return make_collector(self.env_fn, self.agent.actor, t.seed + self.counters["episodes"], t.num_envs,
+                              t.parallel_envs)
 
-    def _store(self, episode: TensorDict) -> TensorDict:
-        episode = episode[0][episode[0].get(("collector", "mask"))]
-        episode = episode.exclude(("collector", "mask"))
-        self.replay.extend(episode)
+    def _store(self, episodes: list[TensorDict]) -> None:
+        """Into the replay, one episode after another; the latest-episode buffer ([-O]) keeps this batch's."""
+        for episode in episodes:
+            self.replay.extend(episode)
         if self.latest is not None:
             self.latest.empty()
-            self.latest.extend(episode)
-        return episode
+            for episode in episodes:
+                self.latest.extend(episode)
 
     def _next_episode(self, state: dict) -> TensorDict:
-        """Next complete episode from the collector. A simulator exception ends that episode with a
+        """Next ``[num_envs, T]`` batch of complete episodes from the collector. A simulator exception ends that batch with a
         warning; a fresh collector (and environment) takes over and training goes on. Non-finite actions
         of the learner's own actor stop training at once (a new environment would not help)."""
         while True:
@@ -323,16 +326,17 @@ class MPAIL2Trainer:
                 # the first step of an episode may already be in flight when the previous one is yielded
                 self.agent.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
                 tick = time.perf_counter()
-                batch = self._next_episode(state)
+                episodes = split_episodes(self._next_episode(state))
                 collect_s = time.perf_counter() - tick
-                episode = self._store(batch)
-                steps = episode.shape[0]
-                record = self._episode_record(episode)
+                self._store(episodes)
+                steps = sum(episode.shape[0] for episode in episodes)
+                records = self._episode_records(episodes)
+                record = records[-1]  # the batch's own figures go with its last episode
                 record["env_steps_per_s"] = steps / collect_s
                 record["collect_s"] = collect_s
                 self._time("act", record.get("act_s", 0.0))
                 self._time("env", collect_s - record.get("act_s", 0.0))
-                self.counters["episodes"] += 1
+                self.counters["episodes"] += len(episodes)
                 self.counters["env_steps"] += steps
                 if self.counters["episodes"] >= t.warmup_episodes:
                     tick = time.perf_counter()
@@ -340,18 +344,19 @@ class MPAIL2Trainer:
                     self._time("update", time.perf_counter() - tick)
                 record.update(self.counters)
                 tick = time.perf_counter()
-                self.logger.log_episode(record)
+                for each in records:
+                    self.logger.log_episode(each)
                 self._time("log", time.perf_counter() - tick)
-                done = self.counters["episodes"]
-                if t.eval_every and (done % t.eval_every == 0 or done == t.total_episodes):
+                done, added = self.counters["episodes"], len(episodes)
+                if t.eval_every and (crossed_multiple(done, added, t.eval_every) or done >= t.total_episodes):
                     evaluation = self._evaluate_and_checkpoint()
                 tick = time.perf_counter()
-                if t.checkpoint_every and done % t.checkpoint_every == 0:
+                if crossed_multiple(done, added, t.checkpoint_every):
                     self.save(f"episode_{done:06d}")
-                if t.last_every and done % t.last_every == 0 and self._last_written != done:
+                if crossed_multiple(done, added, t.last_every) and self._last_written != done:
                     self.save("last", with_replay=True)  # bounds what a crash loses to last_every episodes
                 self._time("checkpoint", time.perf_counter() - tick)
-                bar.update(1)
+                bar.update(added)
                 bar.set_postfix(success=f"{self.logger.success_rate(t.success_window):.2f}",
                                 eval="-" if evaluation is None else f"{evaluation['success_rate_any_step']:.2f}",
                                 sps=f"{record['env_steps_per_s']:.1f}")
@@ -397,15 +402,20 @@ class MPAIL2Trainer:
         self._time("checkpoint", time.perf_counter() - tick)
         return evaluation
 
-    def _episode_record(self, episode: TensorDict) -> dict:
-        record = {"episode": self.counters["episodes"] + 1, "length": episode.shape[0], **episode_outcome(episode),
-                  "random_actions": bool(self.agent.actor.random_actions)}
-        if "policy_influence" in episode.keys() and not self.agent.actor.random_actions:
-            record["policy_influence"] = float(episode["policy_influence"].mean())
-        normalized = self.normalized_return(record["task_return"])
-        if math.isfinite(normalized):
-            record["normalized_return"] = normalized
+    def _episode_records(self, episodes: list[TensorDict]) -> list[dict]:
+        """One log record per episode of a batch; the acting statistics (means over the batch) go with each."""
+        random_actions = bool(self.agent.actor.random_actions)
         acting = self.agent.actor.pop_stats()
-        if not self.agent.actor.random_actions:
-            record.update(acting)
-        return record
+        records = []
+        for i, episode in enumerate(episodes):
+            record = {"episode": self.counters["episodes"] + i + 1, "length": episode.shape[0],
+                      **episode_outcome(episode), "random_actions": random_actions}
+            if "policy_influence" in episode.keys() and not random_actions:
+                record["policy_influence"] = float(episode["policy_influence"].mean())
+            normalized = self.normalized_return(record["task_return"])
+            if math.isfinite(normalized):
+                record["normalized_return"] = normalized
+            if not random_actions:
+                record.update(acting)
+            records.append(record)
+        return records

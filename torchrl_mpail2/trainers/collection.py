@@ -1,0 +1,48 @@
+"""Collecting training episodes with TorchRL's :class:`~torchrl.collectors.Collector`: from one environment, or from
+``num_envs`` at once as a :class:`~torchrl.envs.SerialEnv` (one process) or :class:`~torchrl.envs.ParallelEnv` (one
+worker process each), the planner acting on all of them in one batched call."""
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import ParallelEnv, SerialEnv
+
+__all__ = ["crossed_multiple", "make_collector", "split_episodes"]
+
+MASK_KEY = ("collector", "mask")
+
+
+def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False) -> Collector:
+    """A collector yielding ``num_envs`` complete episodes at a time, padded to ``[num_envs, T]``.
+
+    Environment ``i`` is built with ``env_fn(seed=first_seed + i)``. With one environment it is used as it is
+    (no batched wrapper); with several, ``parallel`` picks a ``ParallelEnv`` (``env_fn`` must then be picklable:
+    a module-level function or a ``functools.partial`` of one) over a ``SerialEnv``.
+    """
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if num_envs == 1:
+        env = env_fn(seed=first_seed)
+    else:
+        batched = ParallelEnv if parallel else SerialEnv
+        env = batched(num_envs, [functools.partial(env_fn, seed=first_seed + i) for i in range(num_envs)])
+    return Collector(env, actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=num_envs, traj_format="padded")
+
+
+def split_episodes(batch: TensorDictBase) -> list[TensorDictBase]:
+    """The episodes of a padded ``[N, T]`` collector batch, each cut to its own length, without the mask."""
+    return [row[row.get(MASK_KEY)].exclude(MASK_KEY) for row in batch.unbind(0)]
+
+
+def crossed_multiple(done: int, added: int, every: int) -> bool:
+    """Whether the counts ``done - added + 1 .. done`` hold a multiple of ``every`` (an evaluation or checkpoint
+    falls due when a batch of several episodes steps over it).
+
+    Examples:
+        >>> crossed_multiple(52, 4, 50), crossed_multiple(48, 4, 50), crossed_multiple(50, 1, 50)
+        (True, False, True)
+    """
+    return every > 0 and done // every > (done - added) // every
