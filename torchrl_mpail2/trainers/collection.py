@@ -10,9 +10,23 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.envs import ParallelEnv, SerialEnv
 
-__all__ = ["crossed_multiple", "make_collector", "split_episodes"]
+__all__ = ["crossed_multiple", "episode_bound", "make_collector", "split_episodes"]
 
 MASK_KEY = ("collector", "mask")
+#: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
+DEFAULT_EPISODE_BOUND = 1000
+
+
+def episode_bound(env) -> int:
+    """Longest possible episode, read from the environment or the ones it wraps (``horizon``,
+    ``max_episode_steps``); :data:`DEFAULT_EPISODE_BOUND` when none tells."""
+    while env is not None:
+        for name in ("horizon", "max_episode_steps", "_max_episode_steps"):
+            value = getattr(env, name, None)
+            if isinstance(value, int) and value > 0:
+                return value
+        env = getattr(env, "base_env", None) or getattr(env, "_env", None)
+    return DEFAULT_EPISODE_BOUND
 
 
 def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False) -> Collector:

@@ -22,7 +22,7 @@ from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
-from torchrl_mpail2.trainers.collection import crossed_multiple, make_collector, split_episodes
+from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
@@ -31,8 +31,6 @@ from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
 
 log = logging.getLogger(__name__)
-#: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
-DEFAULT_EPISODE_BOUND = 1000
 #: What ``--transfer`` copies from another run: everything, or only the world model.
 TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 
@@ -107,21 +105,10 @@ class MPAIL2Trainer:
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
     # ---- setup -----------------------------------------------------------------------------------
-    def _episode_bound(self) -> int:
-        """Longest possible episode, read from the environment (``horizon`` or ``max_episode_steps``)."""
-        env = self.env
-        while env is not None:
-            for name in ("horizon", "max_episode_steps", "_max_episode_steps"):
-                value = getattr(env, name, None)
-                if isinstance(value, int) and value > 0:
-                    return value
-            env = getattr(env, "base_env", None) or getattr(env, "_env", None)
-        return DEFAULT_EPISODE_BOUND
-
     def _make_replay(self, scratch: Path | None, horizon: int) -> TensorDictReplayBuffer:
         t = self.cfg.train
         # a batch of num_envs episodes may step past total_episodes by up to num_envs - 1 episodes
-        capacity = t.replay_size or (t.total_episodes + t.num_envs - 1) * self._episode_bound()
+        capacity = t.replay_size or (t.total_episodes + t.num_envs - 1) * episode_bound(self.env)
         if scratch is not None:
             # the live storage is a working copy; what survives a crash is the copy in checkpoints/last
             shutil.rmtree(scratch, ignore_errors=True)
