@@ -2,8 +2,8 @@
 
 An observation is a flat float or uint8 leaf of the observation spec that is not declared as something else:
 not a reward or done key of the env, not written by one of TorchRL's bookkeeping transforms (``StepCounter``,
-``InitTracker``, ``RewardSum``, ``TrajCounter``: read from the transforms themselves, whatever their key
-names), and not the project's task flag ``"success"``. Given a bare spec instead of an env, the transforms'
+``InitTracker``, ``RewardSum``, ``TrajCounter``, and the state a ``TensorDictPrimer`` carries for a module: read
+from the transforms themselves, whatever their key names), and not the project's task flag ``"success"``. Given a bare spec instead of an env, the transforms'
 default key names and the project's own stand in for the transforms.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import torch
 from torchrl.data import Composite
-from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TrajCounter, TransformedEnv
+from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TensorDictPrimer, TrajCounter, TransformedEnv
 
 __all__ = ["EPISODE_RETURN_KEY", "TASK_FLAG_KEYS", "TASK_REWARD_KEY", "non_observation_keys", "observation_keys_of",
            "with_bookkeeping"]
@@ -34,6 +34,8 @@ def _declared_keys(transform) -> list:
         return list(transform.init_keys)
     if isinstance(transform, (RewardSum, TrajCounter)):
         return list(transform.out_keys)
+    if isinstance(transform, TensorDictPrimer):  # state carried for a module (e.g. the planner's warm start)
+        return list(transform.primers.keys(True, True))
     return []
 
 

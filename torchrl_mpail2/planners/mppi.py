@@ -6,6 +6,8 @@ import contextlib
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor, nn
+from torchrl.data import Unbounded
+from torchrl.envs import TensorDictPrimer
 from torchrl.modules.planners import MPCPlannerBase
 
 from torchrl_mpail2.config import LossConfig, PlannerConfig
@@ -15,6 +17,10 @@ from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
 from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
+
+#: Where the warm start (the previous call's final plan mean ``[*B, H, A]``) lives in the tensordict when the env
+#: carries it (:meth:`LatentMPPIPlanner.make_tensordict_primer`).
+WARM_START_KEY = "planner_mean"
 
 
 def _to_bf16(t: Tensor) -> Tensor:
@@ -44,6 +50,11 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     With ``cfg.bf16`` the dynamics, reward, value and policy networks run on bfloat16 copies of their
     parameters (the encoder, the sampling statistics and the returns' sums stay in float32).
+
+    The warm start lives in the tensordict under ``"planner_mean"`` when the env carries that key (append
+    :meth:`make_tensordict_primer` to it, as for TorchRL's recurrent modules): each environment's state then travels
+    with its own data, so batched and asynchronous collectors work. Without the key the planner keeps the previous
+    mean itself, which suits one caller stepping one batch of environments in order.
 
     In the ``RANDOM`` interaction type (training) the returned plan is a sample of the final Gaussian; in
     ``DETERMINISTIC`` (``set_exploration_type(ExplorationType.DETERMINISTIC)``) it is the mean.
@@ -99,6 +110,12 @@ class LatentMPPIPlanner(MPCPlannerBase):
         self._last_elites: tuple[Tensor, Tensor] | None = None
 
     # ---- warm-start state -------------------------------------------------------------------------
+    def make_tensordict_primer(self) -> TensorDictPrimer:
+        """A transform that gives an env the ``"planner_mean"`` entry ``[H, A]`` (zeros at reset) in which the
+        planner keeps each environment's warm start (``env.append_transform(planner.make_tensordict_primer())``)."""
+        return TensorDictPrimer({WARM_START_KEY: Unbounded((self.horizon, self.action_dim))}, default_value=0.0,
+                                expand_specs=True)  # batched envs: the spec takes their batch dimensions
+
     def reset(self) -> None:
         """Forgets the previous plans (all environments start from a zero mean)."""
         self._prev_mean = None
@@ -111,7 +128,8 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     def _initial_mean(self, td: TensorDictBase, num_envs: int, like: Tensor) -> Tensor:
         mean = torch.zeros(num_envs, self.horizon, self.action_dim, dtype=like.dtype, device=like.device)
-        prev = self._prev_mean
+        carried = td.get(WARM_START_KEY, None)
+        prev = self._prev_mean if carried is None else carried.reshape(num_envs, self.horizon, self.action_dim)
         if prev is None or prev.shape[0] != num_envs:
             return mean
         mean[:, :-1] = prev[:, 1:]
@@ -185,6 +203,8 @@ class LatentMPPIPlanner(MPCPlannerBase):
         # inference tensors cannot be saved for backward later (e.g. replayed actions): hand out normal copies
         self._prev_mean, plan, influence = mean.clone(), plan.clone(), influence.clone()
         self.last_stats = {k: v.clone() for k, v in self.last_stats.items()}
+        if WARM_START_KEY in td.keys():
+            td.set(WARM_START_KEY, self._prev_mean.reshape(*batch_shape, self.horizon, self.action_dim))
         td.set("plan", plan.reshape(*batch_shape, self.horizon, self.action_dim))
         td.set("policy_influence", influence.reshape(*batch_shape, 1))
         if self.record_elites:

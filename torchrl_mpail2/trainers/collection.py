@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.envs import ParallelEnv, SerialEnv
+from torchrl.envs import ParallelEnv, SerialEnv, Transform
 
 __all__ = ["crossed_multiple", "episode_bound", "make_collector", "split_episodes"]
 
@@ -29,12 +29,14 @@ def episode_bound(env) -> int:
     return DEFAULT_EPISODE_BOUND
 
 
-def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False) -> Collector:
+def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False,
+                   state: Transform | None = None) -> Collector:
     """A collector yielding ``num_envs`` complete episodes at a time, padded to ``[num_envs, T]``.
 
     Environment ``i`` is built with ``env_fn(seed=first_seed + i)``. With one environment it is used as it is
     (no batched wrapper); with several, ``parallel`` picks a ``ParallelEnv`` (``env_fn`` must then be picklable:
-    a module-level function or a ``functools.partial`` of one) over a ``SerialEnv``.
+    a module-level function or a ``functools.partial`` of one) over a ``SerialEnv``. ``state`` (e.g. the planner's
+    :meth:`~torchrl_mpail2.planners.LatentMPPIPlanner.make_tensordict_primer`) is appended to the (batched) env.
     """
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -43,12 +45,16 @@ def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, 
     else:
         batched = ParallelEnv if parallel else SerialEnv
         env = batched(num_envs, [functools.partial(env_fn, seed=first_seed + i) for i in range(num_envs)])
+    if state is not None:
+        env = env.append_transform(state)
     return Collector(env, actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=num_envs, traj_format="padded")
 
 
-def split_episodes(batch: TensorDictBase) -> list[TensorDictBase]:
-    """The episodes of a padded ``[N, T]`` collector batch, each cut to its own length, without the mask."""
-    return [row[row.get(MASK_KEY)].exclude(MASK_KEY) for row in batch.unbind(0)]
+def split_episodes(batch: TensorDictBase, drop: tuple = ()) -> list[TensorDictBase]:
+    """The episodes of a padded ``[N, T]`` collector batch, each cut to its own length, without the mask and
+    without the keys in ``drop`` (at the root and under ``"next"``)."""
+    dropped = [MASK_KEY, *drop, *(("next", key) for key in drop)]
+    return [row[row.get(MASK_KEY)].exclude(*dropped) for row in batch.unbind(0)]
 
 
 def crossed_multiple(done: int, added: int, every: int) -> bool:

@@ -21,6 +21,7 @@ from tqdm.auto import tqdm
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
+from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
@@ -254,9 +255,11 @@ class MPAIL2Trainer:
 
     # ---- the loop --------------------------------------------------------------------------------
     def _collector(self):
+        """The planner's warm start travels in the tensordict (each env its own), so that batched envs work."""
         t = self.cfg.train
+        planner = self.agent.planner if self.agent.policy is self.agent.planner else None
         return make_collector(self.env_fn, self.agent.actor, t.seed + self.counters["episodes"], t.num_envs,
-                              t.parallel_envs)
+                              t.parallel_envs, state=None if planner is None else planner.make_tensordict_primer())
 
     def _store(self, episodes: list[TensorDict]) -> None:
         """Into the replay, one episode after another; the latest-episode buffer ([-O]) keeps this batch's."""
@@ -313,7 +316,7 @@ class MPAIL2Trainer:
                 # the first step of an episode may already be in flight when the previous one is yielded
                 self.agent.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
                 tick = time.perf_counter()
-                episodes = split_episodes(self._next_episode(state))
+                episodes = split_episodes(self._next_episode(state), drop=(WARM_START_KEY,))  # not data
                 collect_s = time.perf_counter() - tick
                 self._store(episodes)
                 steps = sum(episode.shape[0] for episode in episodes)
