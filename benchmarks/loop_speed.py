@@ -1,13 +1,16 @@
 """Speed of the whole training loop: environment steps per second of a real run, and where its time goes.
 
     python benchmarks/loop_speed.py [--episodes 8] [--presets lift_state paper_lift_state] [--threads 1 2]
+    python benchmarks/loop_speed.py --presets lift_state --threads 1 --num-envs 1 2 4 --episodes 12 --name num_envs_speed
 
 Each (preset, threads) pair trains a fresh robosuite Lift run (state observations) for ``--episodes`` episodes
 with an evaluation and checkpoints inside the measured window (``train.eval_every`` = ``--episodes``, 5 evaluation
 episodes), one after the other so that no two share the cores. It reports env steps per second over the whole
 run and the trainer's split of the wall time (``summary.json``'s ``time_split_s``: planning, env, update,
-evaluation, checkpoint, logging). Writes ``docs/results/loop_speed.json`` and ``loop_speed.md``. Run it on a quiet
-machine: anything else running slows every figure (say what was).
+evaluation, checkpoint, logging). ``--num-envs`` adds runs collecting from several environments at once
+(``train.num_envs``); every run then starts with the same random warm-up (``max(--num-envs)`` episodes), so the
+planned episodes are the same in number. Writes ``docs/results/<name>.json`` and ``<name>.md`` (``--name``, default
+``loop_speed``). Run it on a quiet machine: anything else running slows every figure (say what was).
 """
 from __future__ import annotations
 
@@ -25,29 +28,35 @@ RESULTS = ROOT / "docs" / "results"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 
 
-def run_one(preset: str, threads: int, episodes: int, scratch: Path, extra: list[str]) -> dict:
-    run_dir = scratch / f"{preset}-t{threads}"
+def run_one(preset: str, threads: int, episodes: int, scratch: Path, extra: list[str], num_envs: int = 1,
+            warmup: int = 1) -> dict:
+    run_dir = scratch / f"{preset}-t{threads}-n{num_envs}"
     cmd = [sys.executable, "-m", "torchrl_mpail2.train", "--preset", preset, f"train.run_dir={run_dir}",
            f"train.threads={threads}", "train.progress=false", "train.logger=none",
            f"train.total_episodes={episodes}", f"train.eval_every={episodes}", "train.eval_episodes=5",
-           f"train.checkpoint_every={episodes}", "train.warmup_episodes=1", *extra]
+           f"train.checkpoint_every={episodes}", f"train.warmup_episodes={warmup}", f"train.num_envs={num_envs}",
+           *extra]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": str(threads)}
     subprocess.run(cmd, check=True, cwd=scratch, env=env, capture_output=True)
     summary = json.loads((run_dir / "summary.json").read_text())
     split = summary["time_split_s"]
     total = split["total"]
-    return {"preset": preset, "threads": threads, "episodes": summary["episodes"], "env_steps": summary["env_steps"],
+    return {"preset": preset, "threads": threads, "num_envs": num_envs, "episodes": summary["episodes"], "env_steps": summary["env_steps"],
             "updates": summary["updates"], "wall_s": total, "env_steps_per_s": summary["env_steps"] / total,
+            # collection alone (planning + env steps): what several environments at once speed up
+            "collect_steps_per_s": summary["env_steps"] / max(split.get("act", 0.0) + split.get("env", 0.0), 1e-9),
             "split_s": {stage: split.get(stage, 0.0) for stage in STAGES},
             "split_share": {stage: split.get(stage, 0.0) / total for stage in STAGES}}
 
 
 def table(rows: list[dict]) -> str:
-    head = "| preset | threads | env steps/s | " + " | ".join(f"{s} %" for s in STAGES) + " |"
-    lines = [head, "|" + "---|" * (3 + len(STAGES))]
+    head = ("| preset | threads | envs | env steps/s | collection steps/s | updates | "
+            + " | ".join(f"{s} %" for s in STAGES) + " |")
+    lines = [head, "|" + "---|" * (6 + len(STAGES))]
     for r in rows:
         shares = " | ".join(f"{100 * r['split_share'][s]:.0f}" for s in STAGES)
-        lines.append(f"| {r['preset']} | {r['threads']} | {r['env_steps_per_s']:.2f} | {shares} |")
+        lines.append(f"| {r['preset']} | {r['threads']} | {r.get('num_envs', 1)} | {r['env_steps_per_s']:.2f} | "
+                     f"{r.get('collect_steps_per_s', float('nan')):.2f} | {r['updates']} | {shares} |")
     return "\n".join(lines)
 
 
@@ -56,23 +65,30 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=8)
     p.add_argument("--presets", nargs="+", default=["lift_state", "paper_lift_state"])
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--num-envs", type=int, nargs="+", default=[1], help="train.num_envs of each run")
+    p.add_argument("--name", default="loop_speed", help="results file name under --out")
     p.add_argument("--note", default="", help="what else was running, recorded with the figures")
     p.add_argument("--out", type=Path, default=RESULTS, help="folder of loop_speed.json and loop_speed.md")
     p.add_argument("overrides", nargs="*", help="config overrides for every run (section.field=value)")
     args = p.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
+        warmup = max(args.num_envs)
+        if args.episodes <= warmup:
+            raise SystemExit(f"--episodes ({args.episodes}) must exceed the warm-up of {warmup} episodes")
         for preset in args.presets:
             for threads in args.threads:
-                rows.append(run_one(preset, threads, args.episodes, Path(scratch), args.overrides))
-                print(json.dumps(rows[-1]), flush=True)
+                for num_envs in args.num_envs:
+                    rows.append(run_one(preset, threads, args.episodes, Path(scratch), args.overrides, num_envs, warmup))
+                    print(json.dumps(rows[-1]), flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    result = {"presets": args.presets, "episodes_per_run": args.episodes, "overrides": args.overrides,
+    result = {"presets": args.presets, "episodes_per_run": args.episodes, "warmup_episodes": warmup,
+              "num_envs": args.num_envs, "overrides": args.overrides,
               "commit": commit, "note": args.note, "machine": {"cpu": platform.processor() or platform.machine()},
               "runs": rows}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "loop_speed.json").write_text(json.dumps(result, indent=2))
-    (args.out / "loop_speed.md").write_text(f"# Whole-loop speed (robosuite Lift, state)\n\n{table(rows)}\n\n"
+    (args.out / f"{args.name}.json").write_text(json.dumps(result, indent=2))
+    (args.out / f"{args.name}.md").write_text(f"# Whole-loop speed (robosuite Lift, state)\n\n{table(rows)}\n\n"
                                            f"Commit {commit}; {args.episodes} episodes per run. {args.note}\n")
     print(table(rows))
 
