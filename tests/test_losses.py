@@ -285,3 +285,18 @@ def test_forward_and_updater_follow_the_one_stage_list(composite):
     stepped.clear()
     updater.update(replay_batch())
     assert stepped == [*expected, "alpha"]
+
+
+def test_value_head_reduce_mean_is_the_sum_over_the_ensemble_size():
+    torch.manual_seed(0)
+    m = tiny_modules()
+    td = replay_batch()
+    summed = MPAIL2Loss(m, LossConfig()).value_loss
+    averaged = MPAIL2Loss(m, LossConfig(value_head_reduce="mean")).value_loss
+    torch.manual_seed(1)
+    a = summed(td)["loss_value"]
+    torch.manual_seed(1)
+    b = averaged(td)["loss_value"]
+    torch.testing.assert_close(b * m.value.net.num_q, a)
+    with pytest.raises(Exception, match="value_head_reduce"):
+        LossConfig(value_head_reduce="max")

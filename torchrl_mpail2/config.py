@@ -202,6 +202,9 @@ class LossConfig:
     see :func:`torchrl_mpail2.functional.multi_step_return`."""
     actor_q_reduce: str = "mean"
     """How the actor's objective combines its two random Q heads: ``mean`` (TD-MPC2) or ``min`` (the authors' code)."""
+    value_head_reduce: str = "sum"
+    """How the value loss combines the ensemble heads' squared errors: ``sum`` (Eq. 4's sum over e) or ``mean``
+    (each head's share, so that the gradient clip acts per head as with one Q; hypothesis 7)."""
     rho: float = 0.95
     """Temporal discount rho of the multi-step latent prediction loss (Eq. 2)."""
     gp_coef: float = 0.1
@@ -242,6 +245,8 @@ class LossConfig:
         check_fields(self)
         from torchrl_mpail2.functional import RETURN_FORMS
 
+        if self.value_head_reduce not in ("sum", "mean"):
+            raise ConfigError(f"LossConfig.value_head_reduce must be 'sum' or 'mean', got {self.value_head_reduce!r}")
         if self.actor_q_reduce not in ("mean", "min"):
             raise ConfigError(f"LossConfig.actor_q_reduce must be 'mean' or 'min', got {self.actor_q_reduce!r}")
         if self.return_form not in RETURN_FORMS:

@@ -32,6 +32,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         gamma (float): discount (0.99). lmbda (float): return parameter (0.95).
         return_form (str): form of the imagined return, one of ``RETURN_FORMS`` (``"paper"``: Eq. 6 as printed).
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
+        head_reduce (str): ``"sum"`` (Eq. 4) or ``"mean"`` over the ensemble heads.
 
     With ``bf16_stop_gradient`` set (the updater's bf16 modes) the target's imagined rollout runs under bfloat16
     autocast; the return itself is float32.
@@ -52,13 +53,15 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
                  gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", mask_terminal: bool = False,
-                 reduction: str = "mean"):
+                 head_reduce: str = "sum", reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.__dict__["dynamics_network"] = dynamics_network  # read only: kept out of this loss's parameters
         self.__dict__["reward_network"] = reward_network
         self.__dict__["policy_network"] = policy_network
         self.convert_to_functional(qvalue_network, "qvalue_network", create_target_params=True)
-        self.gamma, self.lmbda, self.mask_terminal = gamma, lmbda, mask_terminal
+        if head_reduce not in ("sum", "mean"):
+            raise ValueError(f"head_reduce must be 'sum' or 'mean', got {head_reduce!r}")
+        self.gamma, self.lmbda, self.mask_terminal, self.head_reduce = gamma, lmbda, mask_terminal, head_reduce
         self.return_form = _checked_form(return_form)
 
     @torch.no_grad()
@@ -83,6 +86,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
         y, r = self.target(z, z_next, terminated)
         q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
-        loss = self.reduce((q - y).pow(2).sum(0))  # heads summed: each head regresses independently
+        errors = (q - y).pow(2)  # [E, M]: each head regresses independently
+        loss = self.reduce(errors.sum(0) if self.head_reduce == "sum" else errors.mean(0))
         return TensorDict({"loss_value": loss, "q_mean": q.detach().mean(), "q_target_mean": y.mean(),
                            "learned_reward_mean": r.mean()}, [])
