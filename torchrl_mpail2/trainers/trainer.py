@@ -321,7 +321,7 @@ class MPAIL2Trainer:
                 self._store(episodes)
                 steps = sum(episode.shape[0] for episode in episodes)
                 records = self._episode_records(episodes)
-                record = records[-1]  # the batch's own figures go with its last episode
+                record = records[-1]  # the batch's own figures (timing, updates, counters) go with its last episode
                 record["env_steps_per_s"] = steps / collect_s
                 record["collect_s"] = collect_s
                 self._time("act", record.get("act_s", 0.0))
@@ -393,9 +393,11 @@ class MPAIL2Trainer:
         return evaluation
 
     def _episode_records(self, episodes: list[TensorDict]) -> list[dict]:
-        """One log record per episode of a batch; the acting statistics (means over the batch) go with each."""
+        """One log record per episode of a batch; the planner statistics (means over the batch) go with each,
+        the batch's acting seconds with its last."""
         random_actions = bool(self.agent.actor.random_actions)
         acting = self.agent.actor.pop_stats()
+        act_s = acting.pop("act_s", None)
         records = []
         for i, episode in enumerate(episodes):
             record = {"episode": self.counters["episodes"] + i + 1, "length": episode.shape[0],
@@ -408,4 +410,6 @@ class MPAIL2Trainer:
             if not random_actions:
                 record.update(acting)
             records.append(record)
+        if act_s is not None and not random_actions:
+            records[-1]["act_s"] = act_s
         return records
