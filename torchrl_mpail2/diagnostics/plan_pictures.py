@@ -49,8 +49,9 @@ def decoded_paths(agent, probe: LatentProbe, z: torch.Tensor, plans: torch.Tenso
     return probe(latents).transpose(0, 1)
 
 
-def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[int, int], panels: int, title: str,
-                  path: Path, min_half_width: float, labels: tuple[str, str]) -> None:
+def _draw_episode(agent, probe, episode: TensorDictBase, latents: torch.Tensor, key: str, cols: tuple[int, int],
+                  panels: int, title: str, path: Path, min_half_width: float, labels: tuple[str, str]) -> None:
+    """``latents [T, Z]``: the episode's observations encoded once by the caller."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -60,9 +61,8 @@ def _draw_episode(agent, probe, episode: TensorDictBase, key: str, cols: tuple[i
     actual = torch.cat([episode[key], episode["next", key][-1:]])[:, list(cols)]
     chosen_steps = sorted({round(i * (steps - 1) / max(panels - 1, 1)) for i in range(panels)})
     fig, axes = plt.subplots(1, len(chosen_steps), figsize=(3.2 * len(chosen_steps), 3.4), squeeze=False)
-    encoder = agent.modules.encoder
     for ax, t in zip(axes[0], chosen_steps):
-        z = encoder.encode(episode[t:t + 1])[0]
+        z = latents[t]
         elites, weights = episode["elite_plans"][t], episode["elite_weights"][t]
         paths = decoded_paths(agent, probe, z, elites)
         chosen = decoded_paths(agent, probe, z, episode["plan"][t][None])[0]
@@ -121,17 +121,17 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
         planner.record_elites = False
     cols = list(position_columns)
     with torch.no_grad():
-        z = torch.cat([agent.modules.encoder.encode(ep) for ep in rollouts])
+        latents = [agent.modules.encoder.encode(ep) for ep in rollouts]
     y = torch.cat([ep[position_key][..., cols] for ep in rollouts])
-    probe, stats = fit_latent_probe(z, y, steps=probe_steps)
+    probe, stats = fit_latent_probe(torch.cat(latents), y, steps=probe_steps)
     files, successes = [], []
-    for i, (seed, episode) in enumerate(zip(seeds, rollouts)):
+    for i, (seed, episode, z) in enumerate(zip(seeds, rollouts, latents)):
         success = episode_outcome(episode)["success_any_step"]
         successes.append(success)
         path = out_dir / f"plans_episode_{i:02d}.png"
         title = (f"episode {i} (env seed {seed}, success {success:.0f}): elite plans (blue, darker = heavier), chosen "
                  f"plan (red), what happened next (black dashed); probe held-out error {stats['held_out_mae']:.3g}")
-        _draw_episode(agent, probe, episode, position_key, tuple(cols), panels, title, path,
+        _draw_episode(agent, probe, episode, z, position_key, tuple(cols), panels, title, path,
                       min_half_width=float(4 * stats["held_out_mae"]) + 1e-3, labels=labels)
         files.append(path.name)
     weights = torch.cat([ep["elite_weights"] for ep in rollouts])
