@@ -22,7 +22,7 @@ def _base(env) -> RobosuiteEnv:
     return env
 
 
-def _record_with_robosuites_writer(tmp_path, episodes=2, **env_kwargs):
+def _record_with_robosuites_writer(tmp_path, episodes=2, env_info=None, **env_kwargs):
     """Drives the scripted expert through robosuite's DataCollectionWrapper (as a teleoperator would), then
     gathers the raw episodes into demo.hdf5 with robosuite's own script; returns the file and the live rollouts."""
     from robosuite.scripts.collect_human_demonstrations import gather_demonstrations_as_hdf5
@@ -42,7 +42,7 @@ def _record_with_robosuites_writer(tmp_path, episodes=2, **env_kwargs):
     base._sim_env.close()  # flushes the last episode
     out = tmp_path / "hdf5"
     out.mkdir()
-    gather_demonstrations_as_hdf5(str(raw), str(out), json.dumps({"env_name": "Lift", "robots": "Panda"}))
+    gather_demonstrations_as_hdf5(str(raw), str(out), env_info or json.dumps({"env_name": "Lift", "robots": "Panda"}))
     return out / "demo.hdf5", rollouts
 
 

@@ -83,7 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     imports = commands.add_parser("import", help="convert another format's recordings (observations only)")
     imports.add_argument("format", choices=sorted(DEMO_SOURCES))
     imports.add_argument("path", help="what to import (robosuite_hdf5: robosuite's demo.hdf5; ted: a folder of "
-                         "td.memmap(PATH) holding TorchRL TED transitions; minari: a local Minari dataset folder)")
+                         "td.memmap(PATH) holding TorchRL TED transitions; minari: a local Minari dataset folder; "
+                         "robomimic: a robomimic low-dim or image .hdf5)")
     imports.add_argument("--env", required=True, choices=ENV_NAMES, help="the env the recording is replayed through")
     imports.add_argument("--obs", default="state", help="observation mode of the imported demos")
     imports.add_argument("--out", required=True, help="output directory (must not exist unless --overwrite)")

@@ -7,13 +7,19 @@ from pathlib import Path
 from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos
 from torchrl_mpail2.data.demos import Demonstrations
 from torchrl_mpail2.data.minari_import import import_minari
+from torchrl_mpail2.data.robomimic_import import import_robomimic
 from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
 from torchrl_mpail2.data.ted import import_ted
 
 __all__ = ["DEMO_SOURCES", "load_demo_source", "resolve_demo_source"]
 
 #: Importer per source prefix; each takes ``(path, env, progress=...)`` and returns observation-only demos.
-DEMO_SOURCES = {"minari": import_minari, "robosuite_hdf5": import_robosuite_hdf5, "ted": import_ted}
+DEMO_SOURCES = {
+    "minari": import_minari,
+    "robomimic": import_robomimic,
+    "robosuite_hdf5": import_robosuite_hdf5,
+    "ted": import_ted,
+}
 _PREFIX = re.compile(r"([a-z][a-z0-9_]*):(.+)")
 
 

@@ -258,8 +258,12 @@ class RobosuiteEnv(EnvBase):
     def load_model_xml(self, xml: str) -> None:
         """Rebuilds the simulation from a recorded MJCF model (robosuite's ``model_file``: the recorded cube size)."""
         self._sim_env.reset_from_xml_string(xml)
-        self._gripper.current_action = np.zeros_like(np.atleast_1d(self._gripper.current_action))
+        self.reset_gripper_command()
         self._steps_taken = 0
+
+    def reset_gripper_command(self) -> None:
+        """Sets the gripper controller's stored command to 0, its value after a reset."""
+        self._gripper.current_action = np.zeros_like(np.atleast_1d(self._gripper.current_action))
 
     def observe_state(self, flat_state: np.ndarray) -> TensorDict:
         """This env's observation (and ``"success"``) of a flattened mujoco state (``sim.get_state().flatten()``)."""

@@ -1,0 +1,205 @@
+"""robomimic HDF5 datasets (low-dim and image) as observation-only demonstrations (``train.demos=robomimic:PATH``).
+
+robomimic's ``dataset_states_to_obs.py`` writes one file: a ``data`` group with the attribute ``env_args`` (JSON:
+``env_name``, ``env_kwargs`` with ``control_freq``) and per demonstration a group ``demo_N`` holding ``obs/<key>``
+(``[T, ...]``, the observation before each action), ``next_obs/<key>`` (after it), ``actions``, ``rewards``,
+``dones`` and ``states``; an optional ``mask`` group lists demo names per split (``train``, ``valid``).
+
+Each of this library's keys is assembled from robomimic's keys by :data:`ROBOMIMIC_KEY_MAP` (vectors concatenated
+in order; ``"proprio"`` is robosuite's end-effector position, finger joints, joint sin/cos and velocities, as
+:class:`~torchrl_mpail2.envs.robosuite_env.RobosuiteEnv` builds it; ``"object"`` is robosuite's object state with
+its end-effector offset turned round). Images (``[H, W, 3]``, stored upright: robomimic's env wrapper flips
+robosuite's OpenGL-order renders) are moved to ``[3, H, W]`` and resized with antialiasing to the env's size
+(robomimic's default is 84 x 84, this library's 64 x 64). The ``T + 1`` observations
+of an episode are ``obs`` followed by the last ``next_obs`` (``obs`` alone, ``T`` observations, when the file was
+written with ``--exclude-next-obs``). Where the env observes the gripper command, it is advanced from the recorded
+actions as the env's own controller would. Actions, rewards and dones are dropped.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+
+__all__ = ["ROBOMIMIC_KEY_MAP", "KeyRule", "import_robomimic"]
+
+
+class KeyRule(NamedTuple):
+    """How one of this library's keys is made from robomimic's: ``sources`` concatenated along the last axis (an
+    image key takes one source), then ``convert`` (if given) applied to the ``[T, D]`` result."""
+
+    sources: tuple[str, ...]
+    convert: Callable[[np.ndarray], np.ndarray] | None = None
+
+
+def _relative_position_from_eef(object_state: np.ndarray) -> np.ndarray:
+    """robosuite's cube ``object`` state ends with ``gripper_to_cube_pos`` = cube - end effector; this library's
+    ``object`` ends with end effector - cube (:meth:`RobosuiteEnv._observation_td`)."""
+    out = object_state.copy()
+    out[..., -3:] = -out[..., -3:]
+    return out
+
+
+#: This library's observation key -> the rule that assembles it from robomimic's observation keys (Lift; the
+#: robosuite names robomimic keeps).
+ROBOMIMIC_KEY_MAP: dict[str, KeyRule] = {
+    "proprio": KeyRule(("robot0_eef_pos", "robot0_gripper_qpos", "robot0_joint_pos_sin", "robot0_joint_pos_cos",
+                        "robot0_joint_vel")),
+    "object": KeyRule(("object",), _relative_position_from_eef),
+    "external_image": KeyRule(("agentview_image",)),
+    "wrist_image": KeyRule(("robot0_eye_in_hand_image",)),
+}
+#: The library's image keys (uint8 ``[3, H, W]``); every other key is a float vector.
+IMAGE_KEYS = ("external_image", "wrist_image")
+
+
+def _robosuite_base(env):
+    from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
+
+    inner = env
+    while inner is not None and not isinstance(inner, RobosuiteEnv):
+        inner = getattr(inner, "base_env", None)
+    return inner
+
+
+def _selected_demos(path: Path, f, filter_key: str | None, max_demos: int | None) -> list[str]:
+    data = f["data"]
+    if filter_key is None:
+        names = [name for name in data.keys() if name.startswith("demo_")]
+    else:
+        if "mask" not in f or filter_key not in f["mask"]:
+            known = sorted(f["mask"].keys()) if "mask" in f else []
+            raise ValueError(f"{path}: no filter key {filter_key!r} under 'mask' (known: {known})")
+        names = [name.decode() if isinstance(name, bytes) else str(name) for name in f["mask"][filter_key][()]]
+    names = sorted(names, key=lambda name: int(name.removeprefix("demo_")) if name.removeprefix("demo_").isdigit()
+                   else name)[:max_demos]
+    if not names:
+        raise ValueError(f"{path}: no demo_N groups under 'data'" + (f" in split {filter_key!r}" if filter_key else ""))
+    return names
+
+
+def _check_env_args(path: Path, data, base) -> dict:
+    """``env_args`` of the file, checked against the env's task and control rate."""
+    if "env_args" not in data.attrs:
+        raise ValueError(f"{path}: the 'data' group has no 'env_args' attribute (not a robomimic dataset)")
+    env_args = json.loads(data.attrs["env_args"])
+    if base is None:
+        return env_args
+    task = env_args.get("env_name")
+    if task != base.task:
+        raise ValueError(f"{path} was recorded on robosuite task {task!r} (env_args), the env is {base.task!r}")
+    recorded_hz = env_args.get("env_kwargs", {}).get("control_freq")
+    if recorded_hz is not None and float(recorded_hz) != float(base.sim_env.control_freq):
+        raise ValueError(f"{path} was recorded at {recorded_hz} Hz (env_args' control_freq), the env steps at "
+                         f"{base.sim_env.control_freq} Hz")
+    return env_args
+
+
+def _chw_resized(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``[N, H, W, 3]`` uint8 -> ``[N, 3, *size]`` uint8 (antialiased bilinear resize where the size differs)."""
+    chw = torch.as_tensor(np.ascontiguousarray(images)).permute(0, 3, 1, 2)
+    if tuple(chw.shape[-2:]) != tuple(size):
+        chw = torch.nn.functional.interpolate(chw.float(), size=size, mode="bilinear", antialias=True,
+                                              align_corners=False).round().clamp_(0, 255).to(torch.uint8)
+    return chw.numpy()
+
+
+def _episode(path: Path, name: str, demo, keys: list[str], image_sizes: dict, key_map: dict) -> dict:
+    if "obs" not in demo:
+        raise ValueError(f"{path}: {name} has no 'obs' group")
+    out = {}
+    for key in keys:
+        if key not in key_map:
+            raise ValueError(f"{path}: the env observes {key!r}, which ROBOMIMIC_KEY_MAP does not map "
+                             f"(mapped: {sorted(key_map)}); pass key_map={{{key!r}: KeyRule((robomimic keys...))}}")
+        rule = key_map[key]
+        parts = []
+        for source in rule.sources:
+            if source not in demo["obs"]:
+                raise ValueError(f"{path}: {name}/obs has no {source!r}, needed for this library's {key!r} "
+                                 f"(its keys: {sorted(demo['obs'].keys())})")
+            frames = np.asarray(demo["obs"][source])
+            if "next_obs" in demo and source in demo["next_obs"]:
+                frames = np.concatenate([frames, np.asarray(demo["next_obs"][source][-1:])])
+            parts.append(frames)
+        if key in image_sizes:
+            out[key] = _chw_resized(parts[0], image_sizes[key])
+        else:
+            vector = np.concatenate([part.reshape(len(part), -1) for part in parts], axis=-1)
+            out[key] = (vector if rule.convert is None else rule.convert(vector)).astype(np.float32)
+    return out
+
+
+def _gripper_commands(base, actions: np.ndarray, length: int) -> np.ndarray:
+    """The gripper command the env observes at each of ``length`` frames (before each action)."""
+    base.reset_gripper_command()
+    commands = []
+    for t in range(length):
+        commands.append(base.gripper_command())
+        if t < len(actions):
+            base.apply_gripper_command(actions[t])
+    return np.asarray(commands, dtype=np.float32)[:, None]
+
+
+def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, filter_key: str | None = None,
+                     key_map: dict[str, KeyRule] | None = None, progress: bool = False) -> Demonstrations:
+    """Observation-only demonstrations from a robomimic HDF5 dataset, in ``env``'s keys.
+
+    Args:
+        path: the robomimic ``.hdf5`` file (low-dim or image).
+        env: the env the demos are for (``make_env("robosuite/Lift", obs=...)``): its observation keys decide what
+            is assembled; for this library's robosuite envs the task and control rate must match ``env_args``.
+
+    Keyword Args:
+        max_demos (int, optional): import only the first ``max_demos`` demonstrations.
+        filter_key (str, optional): import only the demos of this split of the file's ``mask`` (e.g. ``"train"``).
+        key_map (dict, optional): entries that replace or extend :data:`ROBOMIMIC_KEY_MAP`.
+        progress (bool): show a progress bar.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        ValueError: the file is not a robomimic dataset, was recorded on another task or at another control rate,
+            or lacks a key the env observes (the file, demo and both keys are named).
+    """
+    import h5py
+
+    from torchrl_mpail2.envs.keys import observation_keys_of
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no robomimic dataset at {path}")
+    base = _robosuite_base(env)
+    key_map = {**ROBOMIMIC_KEY_MAP, **(key_map or {})}
+    keys = observation_keys_of(env)
+    command_in_proprio = base is not None and base.observe_gripper_command
+    image_sizes = {key: tuple(env.observation_spec[key].shape[-2:]) for key in keys if key in IMAGE_KEYS}
+    episodes, successes = [], []
+    with h5py.File(path, "r") as f:
+        if "data" not in f:
+            raise ValueError(f"{path}: no 'data' group (not a robomimic dataset); groups: {list(f.keys())}")
+        env_args = _check_env_args(path, f["data"], base)
+        # robosuite's sparse reward is 1 exactly on success steps (success at the last step is what demos record);
+        # a shaped one says nothing certain about success
+        sparse = env_args.get("env_kwargs", {}).get("reward_shaping") is False
+        names = _selected_demos(path, f, filter_key, max_demos)
+        for name in tqdm(names, desc=f"reading {path.name}", disable=not progress):
+            demo = f["data"][name]
+            episode = _episode(path, name, demo, keys, image_sizes, key_map)
+            if command_in_proprio and "proprio" in episode:
+                commands = _gripper_commands(base, np.asarray(demo["actions"]), len(episode["proprio"]))
+                episode["proprio"] = np.concatenate([episode["proprio"], commands], axis=-1)
+            episodes.append(episode)
+            successes.append(bool(np.asarray(demo["rewards"])[-1] >= 1.0) if sparse and "rewards" in demo else None)
+    env_id = f"robosuite/{base.task}" if base is not None else "custom"
+    demos = demos_from_arrays(episodes, env_id=env_id,
+                              success=successes if None not in successes else None)
+    demos.header["source"] = {"format": "robomimic", "path": str(path.resolve()), "demos": names,
+                              "filter_key": filter_key, "dropped": ["actions", "rewards", "dones", "states"]}
+    return demos
