@@ -233,3 +233,30 @@ def test_the_elite_spread_temperature_plans_to_the_goal_and_bad_names_are_refuse
     assert errors["elite_spread"] < 0.04 and errors["elite_spread"] < errors["absolute"] / 2, errors
     with pytest.raises(ConfigError, match="temperature_scale 'spread'"):
         PlannerConfig(temperature_scale="spread")
+
+
+def _twin_planners(**cfg):
+    modules = tiny_modules(obs_dim=3, action_dim=2, horizon=3)
+    settings = dict(num_candidates=32, num_elites=8, iterations=2, **cfg)
+    return [LatentMPPIPlanner(modules, Bounded(-1, 1, (2,)), PlannerConfig(**settings, compile=compiled),
+                              generator=torch.Generator().manual_seed(0)) for compiled in (False, True)]
+
+
+def test_a_compiling_planner_copies_and_pickles_before_and_without_its_graphs():
+    import copy
+    import pickle
+
+    _, compiled = _twin_planners()
+    assert compiled._scorer() is not compiled.score  # wrapped lazily, on first use
+    for clone in (copy.deepcopy(compiled), pickle.loads(pickle.dumps(compiled))):
+        assert "_compiled_score" not in clone.__dict__ and clone.cfg.compile
+
+
+@pytest.mark.slow
+def test_the_compiled_planner_plans_as_the_eager_one_in_training_and_evaluation():
+    eager, compiled = _twin_planners()
+    observations = TensorDict({"observation": torch.randn(2, 3)}, [2])
+    for mode in (ExplorationType.RANDOM, ExplorationType.DETERMINISTIC, ExplorationType.RANDOM):
+        with set_exploration_type(mode):
+            actions = [planner(observations.clone())["action"] for planner in (eager, compiled)]
+        torch.testing.assert_close(actions[1], actions[0], atol=1e-5, rtol=1e-5)

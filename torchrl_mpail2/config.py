@@ -282,6 +282,10 @@ class PlannerConfig:
     """Upper clip sigma_max of the sampling std (also the std of the first iteration)."""
     bf16: bool = False
     """Run the planner's matmuls under bfloat16 autocast (faster on CPUs with AVX-512 bf16)."""
+    compile: bool = False
+    """Compile the plan scoring (latent rollout, rewards, terminal value) with ``torch.compile``, once per batch
+    shape and precision; training and evaluation calls share the graphs. Off by default: compiling costs minutes
+    on a CPU and changes the last bits of the returns (``benchmarks/compile_speed.py``)."""
     terminal_value: str = "policy_action"
     """How a plan's return is closed: ``policy_action`` (H rewards + gamma^H Q(z_H, pi(z_H)), TD-MPC2's form) or
     ``plan_last_action`` (H - 1 rewards + gamma^(H-1) Q(z_{H-1}, a_{H-1}), the authors' code: Q scores the plan's

@@ -169,6 +169,21 @@ class LatentMPPIPlanner(MPCPlannerBase):
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
         return (total + self.gamma ** rewarded * q).view(batch, num)
 
+    def _scorer(self):
+        """:meth:`score`, compiled on first use with ``cfg.compile`` (kept out of the module's attributes, so the
+        planner still copies and pickles)."""
+        if not self.cfg.compile:
+            return self.score
+        compiled = self.__dict__.get("_compiled_score")
+        if compiled is None:
+            compiled = self.__dict__["_compiled_score"] = torch.compile(self.score, dynamic=False)
+        return compiled
+
+    def __getstate__(self):
+        state = dict(super().__getstate__())
+        state.pop("_compiled_score", None)  # recompiled on first use after a copy
+        return state
+
     # ---- Algorithm 2 ------------------------------------------------------------------------------
     def _planning_networks(self) -> tuple[nn.Module, ...]:
         m = self.components
@@ -226,6 +241,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         heads = heads[:HEADS_PER_ESTIMATE].to(z.device)
         mean = self._initial_mean(flat, num_envs, z)
         std = torch.full_like(mean, cfg.std_max)
+        score = self._scorer()
         with self._low_precision() as dtype:
             z = z.to(dtype or z.dtype)
             pi_plans = mean.new_empty(num_envs, 0, self.horizon, self.action_dim)
@@ -236,10 +252,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
                 plans = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
                 plans = torch.cat([plans, pi_plans], 1)  # policy samples sit at indices >= N - M, as in Algorithm 2
                 if iteration == 0:  # the policy samples are scored once, together with the first Gaussian ones
-                    returns = self.score(z, plans, heads)
+                    returns = score(z, plans, heads)
                     pi_returns = returns[:, num_gauss:]
                 else:
-                    returns = torch.cat([self.score(z, plans[:, :num_gauss], heads), pi_returns], 1)
+                    returns = torch.cat([score(z, plans[:, :num_gauss], heads), pi_returns], 1)
                 weights, elite_index = mppi_weights(returns, cfg.num_elites, cfg.temperature,
                                                     relative=cfg.temperature_scale == "elite_spread")
                 elites = plans.gather(1, elite_index[..., None, None].expand(-1, -1, self.horizon, self.action_dim))
