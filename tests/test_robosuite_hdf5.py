@@ -117,8 +117,8 @@ def test_the_source_syntax_saves_and_loads_and_bad_files_are_named(recording, tm
         f["data"].create_group("demo_1").create_dataset("states", data=np.zeros((3, 5)))
     with pytest.raises(ValueError, match="demo_1 has no 'actions' dataset"):
         import_robosuite_hdf5(broken, env, progress=False)
-    with pytest.raises(ValueError, match="unknown demonstration source prefix 'robomimic'"):
-        load_demo_source(f"robomimic:{path}", env)
+    with pytest.raises(ValueError, match="unknown demonstration source prefix 'lerobot'"):
+        load_demo_source(f"lerobot:{path}", env)
 
 
 def test_the_command_line_imports_into_a_demo_folder(recording, tmp_path, capsys):
