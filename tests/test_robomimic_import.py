@@ -128,6 +128,13 @@ def test_wrong_task_unknown_split_and_missing_file_are_refused(tmp_path, lift_st
         import_robomimic(tmp_path / "nothere.hdf5", lift_state_env)
 
 
+def test_a_plain_key_map_entry_concatenates_without_converting(lift_state_env):
+    demos = import_robomimic(LOW_DIM, lift_state_env, max_demos=1, key_map={"object": ("object",)})
+    with h5py.File(LOW_DIM) as f:
+        raw = np.asarray(f["data"][demos.header["source"]["demos"][0]]["obs"]["object"])
+    np.testing.assert_allclose(demos.episode(0)["object"][:-1].numpy(), raw, atol=1e-6)
+
+
 def test_train_split_the_source_prefix_and_the_command_line(tmp_path, lift_state_env):
     from torchrl_mpail2.demos import main
 

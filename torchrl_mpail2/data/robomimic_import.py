@@ -119,7 +119,7 @@ def _episode(path: Path, name: str, demo, keys: list[str], image_sizes: dict, ke
         if key not in key_map:
             raise ValueError(f"{path}: the env observes {key!r}, which ROBOMIMIC_KEY_MAP does not map "
                              f"(mapped: {sorted(key_map)}); pass key_map={{{key!r}: KeyRule((robomimic keys...))}}")
-        rule = key_map[key]
+        rule = key_map[key] if isinstance(key_map[key], KeyRule) else KeyRule(tuple(key_map[key]))
         parts = []
         for source in rule.sources:
             if source not in demo["obs"]:
@@ -149,7 +149,7 @@ def _gripper_commands(base, actions: np.ndarray, length: int) -> np.ndarray:
 
 
 def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, filter_key: str | None = None,
-                     key_map: dict[str, KeyRule] | None = None, progress: bool = False) -> Demonstrations:
+                     key_map: dict[str, KeyRule | tuple[str, ...]] | None = None, progress: bool = False) -> Demonstrations:
     """Observation-only demonstrations from a robomimic HDF5 dataset, in ``env``'s keys.
 
     Args:
@@ -160,7 +160,8 @@ def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, fil
     Keyword Args:
         max_demos (int, optional): import only the first ``max_demos`` demonstrations.
         filter_key (str, optional): import only the demos of this split of the file's ``mask`` (e.g. ``"train"``).
-        key_map (dict, optional): entries that replace or extend :data:`ROBOMIMIC_KEY_MAP`.
+        key_map (dict, optional): entries that replace or extend :data:`ROBOMIMIC_KEY_MAP`: a :class:`KeyRule` or
+            a plain tuple of robomimic keys (concatenated, not converted).
         progress (bool): show a progress bar.
 
     Raises:
