@@ -22,12 +22,19 @@ _TRIM_THRESHOLD_BYTES = (1 << 31) - 1
 
 
 def nonfinite_keys(tensordict: TensorDictBase) -> list[str]:
-    """Floating-point entries of ``tensordict`` holding NaN or Inf, as dotted names (``"next.observation"``)."""
-    bad = []
-    for key, value in tensordict.items(include_nested=True, leaves_only=True):
-        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
-            bad.append(key if isinstance(key, str) else ".".join(key))
-    return bad
+    """Floating-point entries of ``tensordict`` holding NaN or Inf, as dotted names (``"next.observation"``).
+
+    One host synchronisation for a finite batch (the per-entry flags are reduced on the device first); the entries
+    are looked at one by one only when something is not finite."""
+    floats = [(key, value) for key, value in tensordict.items(include_nested=True, leaves_only=True)
+              if isinstance(value, torch.Tensor) and value.is_floating_point()]
+    if not floats:
+        return []
+    finite = torch.stack([torch.isfinite(value).all() for _, value in floats])
+    if bool(finite.all()):
+        return []
+    return [key if isinstance(key, str) else ".".join(key)
+            for (key, _), ok in zip(floats, finite.tolist()) if not ok]
 
 
 def retain_freed_memory() -> bool:
