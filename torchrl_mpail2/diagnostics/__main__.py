@@ -1,9 +1,9 @@
-"""``python -m torchrl_mpail2.diagnostics plan_pictures CKPT [...]``: the diagnostics' command line."""
+"""``python -m torchrl_mpail2.diagnostics {plan_pictures,lift_phases} CKPT [...]``: the diagnostics' command line."""
 import sys
 
-from torchrl_mpail2.diagnostics import plan_pictures
+from torchrl_mpail2.diagnostics import lift_phases, plan_pictures
 
-COMMANDS = {"plan_pictures": plan_pictures.main}
+COMMANDS = {"lift_phases": lift_phases.main, "plan_pictures": plan_pictures.main}
 
 if __name__ == "__main__":
     if len(sys.argv) < 2 or sys.argv[1] not in COMMANDS:

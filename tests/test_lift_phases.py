@@ -1,0 +1,40 @@
+"""Lift failure phases read from an episode's observations."""
+import pytest
+import torch
+
+from torchrl_mpail2.diagnostics.lift_phases import lift_phases, main, summarize_phases
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.experts import get_expert
+
+pytest.importorskip("robosuite")
+
+
+@pytest.fixture(scope="module")
+def lift():
+    return make_env("robosuite/Lift", seed=0)
+
+
+def test_the_scripted_expert_passes_every_phase_and_standing_still_none(lift):
+    expert = get_expert("robosuite/Lift", lift)
+    lift.set_seed(0)
+    done = lift_phases(lift.rollout(100, expert, break_when_any_done=True))
+    assert done["reach"] and done["grasp"] and done["lift"] and done["success"], done
+    assert done["closest_cm"] < 2 and done["highest_rise_cm"] > 4 and done["first_closing_step"] > 0
+
+    def still(td):
+        return td.set("action", torch.zeros(4))
+
+    lift.set_seed(0)
+    idle = lift_phases(lift.rollout(20, still))
+    assert not any(idle[p] for p in ("reach", "grasp", "lift", "success")), idle
+    assert idle["first_closing_step"] is None
+    assert summarize_phases([done, idle]) == {"reach": 0.5, "grasp": 0.5, "lift": 0.5, "success": 0.5}
+
+
+def test_a_rollout_without_state_keys_and_a_missing_checkpoint_are_named(lift, tmp_path):
+    lift.set_seed(0)
+    rollout = lift.rollout(2, lambda td: td.set("action", torch.zeros(4)))
+    with pytest.raises(ValueError, match="'object'"):
+        lift_phases(rollout.exclude(("next", "object")))
+    with pytest.raises(Exception, match="nothere"):
+        main([str(tmp_path / "nothere")])

@@ -1,0 +1,105 @@
+"""Where Lift episodes fail: how far each evaluation episode gets through reach, grasp, lift and success.
+
+Read from the episode's own observations (robosuite Lift, ``"state"`` mode: ``"proprio"`` holds the finger joints
+at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's offset from the cube at ``[7:10]``):
+
+* ``reach``: the end effector came within :data:`REACH_M` of the cube's centre;
+* ``grasp``: while within reach, the fingers were closed onto something: their opening at least :data:`CLOSED_BY_M`
+  below its largest value so far in the episode (closing; they start half open) but above :data:`SHUT_M` (stopped
+  by the cube);
+* ``lift``: the cube rose :data:`LIFT_M` above where it started;
+* ``success``: the task's own success flag at any step.
+
+Also per episode: the closest approach (cm), the highest rise (cm) and the first step at which the fingers were
+closing::
+
+    python -m torchrl_mpail2.diagnostics lift_phases RUN/checkpoints/episode_000300 [...] --episodes 20 --out F.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+
+__all__ = ["lift_phases", "summarize_phases"]
+
+REACH_M = 0.02
+#: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
+#: nothing, about 0.05 m on the cube.
+CLOSED_BY_M, SHUT_M = 0.005, 0.01
+LIFT_M = 0.01
+PHASES = ("reach", "grasp", "lift", "success")
+
+
+def lift_phases(rollout: TensorDictBase) -> dict:
+    """The phases one Lift episode reached, from its rollout ``[T]`` (``rollout()`` output: observations and
+    ``("next", ...)``). Raises ``ValueError`` naming a missing key (``"proprio"`` / ``"object"``: state mode)."""
+    for key in ("proprio", "object"):
+        if ("next", key) not in rollout.keys(include_nested=True):
+            raise ValueError(f"lift_phases reads ('next', {key!r}) of a robosuite/Lift rollout in 'state' mode; the "
+                           f"rollout has {sorted(str(k) for k in rollout.keys(include_nested=True, leaves_only=True))}")
+    proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
+    distance = np.linalg.norm(obj[:, 7:10], axis=-1)
+    opening = proprio[:, 3] - proprio[:, 4]
+    rise = obj[:, 2] - float(rollout["object"][0, 2])
+    near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M
+    success = rollout.get(("next", "success"), None)
+    return {
+        "reach": bool(near.any()),
+        "grasp": bool((near & closing & (opening > SHUT_M)).any()),
+        "lift": bool((rise > LIFT_M).any()),
+        "success": bool(success.any()) if success is not None else None,
+        "closest_cm": round(float(distance.min()) * 100, 1),
+        "highest_rise_cm": round(float(rise.max()) * 100, 1),
+        "first_closing_step": int(np.argmax(closing)) if closing.any() else None,
+    }
+
+
+def summarize_phases(episodes: list[dict]) -> dict:
+    """The share of episodes that reached each phase."""
+    return {phase: float(np.mean([bool(e[phase]) for e in episodes])) for phase in PHASES if episodes}
+
+
+def evaluate_checkpoint(path: str | Path, episodes: int) -> dict:
+    """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner -> phases."""
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.envs import make_env
+    from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds
+
+    agent = MPAIL2Agent.from_checkpoint(path)
+    train = agent.run_config["train"]
+    if train["env"] != "robosuite/Lift" or train["obs"] != "state":
+        raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' mode, this run is "
+                         f"{train['env']} with obs {train['obs']!r}")
+    env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
+    rollouts: list = []
+    evaluate_episodes(env, agent.policy, evaluation_seeds(train["eval_seed"], episodes), agent.planner,
+                      rollouts=rollouts)
+    env.close()
+    per_episode = [lift_phases(rollout) for rollout in rollouts]
+    return {"checkpoint": str(path), "episodes": episodes, "phases": summarize_phases(per_episode),
+            "per_episode": per_episode}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics lift_phases",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", nargs="+", help="checkpoint folders of robosuite/Lift state runs")
+    parser.add_argument("--episodes", type=int, default=20, help="the run's first N fixed evaluation episodes")
+    parser.add_argument("--out", help="write the results to this JSON file")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    results = []
+    print(f"{'checkpoint':60s} " + " ".join(f"{p:>7s}" for p in PHASES))
+    for path in args.checkpoints:
+        result = evaluate_checkpoint(path, args.episodes)
+        results.append(result)
+        print(f"{path[-60:]:60s} " + " ".join(f"{result['phases'][p]:7.2f}" for p in PHASES), flush=True)
+    if args.out:
+        Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+        print(f"wrote {args.out}")
