@@ -95,6 +95,14 @@ def test_images_are_upright_chw_and_resized_to_the_envs_size():
     assert upright_error < 5 and upright_error < flipped_error / 10, (upright_error, flipped_error)
 
 
+def test_the_external_camera_mode_takes_agentview_alone_and_image_rules_take_one_key():
+    env = make_env("robosuite/Lift", obs="external_pixels")
+    demos = import_robomimic(IMAGE, env)
+    assert demos.observation_keys == ["external_image"] and demos.episode(0)["external_image"].shape[1:] == (3, 64, 64)
+    with pytest.raises(ValueError, match="'external_image' is made of exactly one"):
+        import_robomimic(IMAGE, env, key_map={"external_image": ("agentview_image", "robot0_eye_in_hand_image")})
+
+
 def _edited_copy(tmp_path, edit) -> Path:
     copy = tmp_path / "edited.hdf5"
     shutil.copy(LOW_DIM, copy)

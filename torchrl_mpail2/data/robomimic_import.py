@@ -120,6 +120,9 @@ def _episode(path: Path, name: str, demo, keys: list[str], image_sizes: dict, ke
             raise ValueError(f"{path}: the env observes {key!r}, which ROBOMIMIC_KEY_MAP does not map "
                              f"(mapped: {sorted(key_map)}); pass key_map={{{key!r}: KeyRule((robomimic keys...))}}")
         rule = key_map[key] if isinstance(key_map[key], KeyRule) else KeyRule(tuple(key_map[key]))
+        if key in image_sizes and len(rule.sources) != 1:
+            raise ValueError(f"the image key {key!r} is made of exactly one robomimic key, the key map gives "
+                             f"{rule.sources}")
         parts = []
         for source in rule.sources:
             if source not in demo["obs"]:
