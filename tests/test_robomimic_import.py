@@ -12,7 +12,7 @@ import pytest
 from torchrl_mpail2.data import load_demo_source, load_demos
 from torchrl_mpail2.data.robomimic_import import import_robomimic
 from torchrl_mpail2.envs import make_env
-from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv, robosuite_base
 
 pytest.importorskip("robosuite")
 
@@ -22,9 +22,9 @@ IMAGE = DATA / "robomimic_lift_image.hdf5"
 
 
 def _base(env) -> RobosuiteEnv:
-    while not isinstance(env, RobosuiteEnv):
-        env = env.base_env
-    return env
+    base = robosuite_base(env)
+    assert base is not None
+    return base
 
 
 def _replayed(env, demo) -> list:

@@ -10,16 +10,16 @@ import torch
 from torchrl_mpail2.data import load_demo_source, save_demos
 from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
 from torchrl_mpail2.envs import make_env
-from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv, robosuite_base
 from torchrl_mpail2.experts import get_expert
 
 pytest.importorskip("robosuite")
 
 
 def _base(env) -> RobosuiteEnv:
-    while not isinstance(env, RobosuiteEnv):
-        env = env.base_env
-    return env
+    base = robosuite_base(env)
+    assert base is not None
+    return base
 
 
 def _record_with_robosuites_writer(tmp_path, episodes=2, env_info=None, **env_kwargs):

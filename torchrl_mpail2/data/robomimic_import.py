@@ -27,6 +27,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.data.robosuite_hdf5 import sorted_demo_names
 
 __all__ = ["ROBOMIMIC_KEY_MAP", "KeyRule", "import_robomimic"]
 
@@ -56,30 +57,15 @@ ROBOMIMIC_KEY_MAP: dict[str, KeyRule] = {
     "external_image": KeyRule(("agentview_image",)),
     "wrist_image": KeyRule(("robot0_eye_in_hand_image",)),
 }
-#: The library's image keys (uint8 ``[3, H, W]``); every other key is a float vector.
-IMAGE_KEYS = ("external_image", "wrist_image")
-
-
-def _robosuite_base(env):
-    from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
-
-    inner = env
-    while inner is not None and not isinstance(inner, RobosuiteEnv):
-        inner = getattr(inner, "base_env", None)
-    return inner
-
-
 def _selected_demos(path: Path, f, filter_key: str | None, max_demos: int | None) -> list[str]:
-    data = f["data"]
     if filter_key is None:
-        names = [name for name in data.keys() if name.startswith("demo_")]
+        names = list(f["data"].keys())
     else:
         if "mask" not in f or filter_key not in f["mask"]:
             known = sorted(f["mask"].keys()) if "mask" in f else []
             raise ValueError(f"{path}: no filter key {filter_key!r} under 'mask' (known: {known})")
         names = [name.decode() if isinstance(name, bytes) else str(name) for name in f["mask"][filter_key][()]]
-    names = sorted(names, key=lambda name: int(name.removeprefix("demo_")) if name.removeprefix("demo_").isdigit()
-                   else name)[:max_demos]
+    names = sorted_demo_names(names)[:max_demos]
     if not names:
         raise ValueError(f"{path}: no demo_N groups under 'data'" + (f" in split {filter_key!r}" if filter_key else ""))
     return names
@@ -111,10 +97,9 @@ def _chw_resized(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return chw.numpy()
 
 
-def _episode(path: Path, name: str, demo, keys: list[str], image_sizes: dict, key_map: dict) -> dict:
-    if "obs" not in demo:
-        raise ValueError(f"{path}: {name} has no 'obs' group")
-    out = {}
+def _rules(path: Path, keys: list[str], image_sizes: dict, key_map: dict) -> dict[str, KeyRule]:
+    """The rule of each of the env's keys (plain tuples made rules), checked once for the whole file."""
+    rules = {}
     for key in keys:
         if key not in key_map:
             raise ValueError(f"{path}: the env observes {key!r}, which ROBOMIMIC_KEY_MAP does not map "
@@ -123,6 +108,15 @@ def _episode(path: Path, name: str, demo, keys: list[str], image_sizes: dict, ke
         if key in image_sizes and len(rule.sources) != 1:
             raise ValueError(f"the image key {key!r} is made of exactly one robomimic key, the key map gives "
                              f"{rule.sources}")
+        rules[key] = rule
+    return rules
+
+
+def _episode(path: Path, name: str, demo, rules: dict[str, KeyRule], image_sizes: dict) -> dict:
+    if "obs" not in demo:
+        raise ValueError(f"{path}: {name} has no 'obs' group")
+    out = {}
+    for key, rule in rules.items():
         parts = []
         for source in rule.sources:
             if source not in demo["obs"]:
@@ -175,15 +169,18 @@ def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, fil
     import h5py
 
     from torchrl_mpail2.envs.keys import observation_keys_of
+    from torchrl_mpail2.envs.robosuite_env import robosuite_base
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no robomimic dataset at {path}")
-    base = _robosuite_base(env)
-    key_map = {**ROBOMIMIC_KEY_MAP, **(key_map or {})}
+    base = robosuite_base(env)
     keys = observation_keys_of(env)
     command_in_proprio = base is not None and base.observe_gripper_command
-    image_sizes = {key: tuple(env.observation_spec[key].shape[-2:]) for key in keys if key in IMAGE_KEYS}
+    # images are the env's [3, H, W] entries; every other key is a vector
+    image_sizes = {key: tuple(env.observation_spec[key].shape[-2:]) for key in keys
+                   if len(env.observation_spec[key].shape) == 3}
+    rules = _rules(path, keys, image_sizes, {**ROBOMIMIC_KEY_MAP, **(key_map or {})})
     episodes, successes = [], []
     with h5py.File(path, "r") as f:
         if "data" not in f:
@@ -195,7 +192,7 @@ def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, fil
         names = _selected_demos(path, f, filter_key, max_demos)
         for name in tqdm(names, desc=f"reading {path.name}", disable=not progress):
             demo = f["data"][name]
-            episode = _episode(path, name, demo, keys, image_sizes, key_map)
+            episode = _episode(path, name, demo, rules, image_sizes)
             if command_in_proprio and "proprio" in episode:
                 commands = _gripper_commands(base, np.asarray(demo["actions"]), len(episode["proprio"]))
                 episode["proprio"] = np.concatenate([episode["proprio"], commands], axis=-1)

@@ -26,19 +26,18 @@ CONTROL_FREQ_FIELD = "control_freq"
 
 def _robosuite_base(env):
     """The :class:`RobosuiteEnv` inside ``env`` (a TransformedEnv of the project's robosuite factory)."""
-    from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv
+    from torchrl_mpail2.envs.robosuite_env import robosuite_base
 
-    inner = env
-    while not isinstance(inner, RobosuiteEnv):
-        inner = getattr(inner, "base_env", None)
-        if inner is None:
-            raise TypeError(f"import_robosuite_hdf5 replays states through a robosuite env of this library "
-                            f"(make_env('robosuite/<task>', ...)), got {type(env).__name__}")
+    inner = robosuite_base(env)
+    if inner is None:
+        raise TypeError(f"import_robosuite_hdf5 replays states through a robosuite env of this library "
+                        f"(make_env('robosuite/<task>', ...)), got {type(env).__name__}")
     return inner
 
 
-def _demo_names(group) -> list[str]:
-    names = [name for name in group.keys() if name.startswith("demo_")]
+def sorted_demo_names(names) -> list[str]:
+    """The ``demo_N`` names among ``names`` in the order of N (robosuite's and robomimic's group names)."""
+    names = [str(name) for name in names if str(name).startswith("demo_")]
     try:
         return sorted(names, key=lambda name: int(name.removeprefix("demo_")))
     except ValueError:
@@ -88,7 +87,7 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
         if recorded_hz is not None and float(recorded_hz) != float(base.sim_env.control_freq):
             raise ValueError(f"{path} was recorded at {recorded_hz} Hz ({CONTROL_FREQ_FIELD} in env_info), "
                              f"the env steps at {base.sim_env.control_freq} Hz")
-        names = _demo_names(data)[:max_demos]
+        names = sorted_demo_names(data.keys())[:max_demos]
         if not names:
             raise ValueError(f"{path}: no demo_N groups under 'data'")
         for name in tqdm(names, desc=f"replaying {path.name}", disable=not progress):

@@ -384,6 +384,13 @@ class RobosuiteEnv(EnvBase):
         return np.ascontiguousarray(image[::-1].transpose(2, 0, 1))
 
 
+def robosuite_base(env) -> RobosuiteEnv | None:
+    """The :class:`RobosuiteEnv` inside ``env`` (through TransformedEnvs' ``base_env``), or None if there is none."""
+    while env is not None and not isinstance(env, RobosuiteEnv):
+        env = getattr(env, "base_env", None)
+    return env
+
+
 def make_robosuite_env(
     task: str,
     obs: str = "state",

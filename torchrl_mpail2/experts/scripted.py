@@ -16,7 +16,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from torchrl_mpail2.envs.robosuite_env import MAX_EEF_DELTA, RobosuiteEnv
+from torchrl_mpail2.envs.robosuite_env import MAX_EEF_DELTA, RobosuiteEnv, robosuite_base
 from torchrl_mpail2.experts.human_like import HumanLikeMotion
 
 GRIPPER_OPEN = -1.0
@@ -25,11 +25,10 @@ GRIPPER_CLOSE = 1.0
 
 def _find_robosuite_env(env) -> RobosuiteEnv:
     """Unwrap TransformedEnvs down to the RobosuiteEnv."""
-    while not isinstance(env, RobosuiteEnv):
-        if not hasattr(env, "base_env"):
-            raise TypeError(f"Scripted experts need a RobosuiteEnv (possibly transformed), got {type(env).__name__}.")
-        env = env.base_env
-    return env
+    base = robosuite_base(env)
+    if base is None:
+        raise TypeError(f"Scripted experts need a RobosuiteEnv (possibly transformed), got {type(env).__name__}.")
+    return base
 
 
 def _move_towards(eef_pos: np.ndarray, target: np.ndarray, gain: float = 1.5) -> np.ndarray:
