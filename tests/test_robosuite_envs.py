@@ -187,6 +187,37 @@ def test_workspace_box_bounds_the_end_effector(state_envs):
             assert eef[axis] > WORKSPACE_HIGH[axis] - 2 * MAX_EEF_DELTA, "the arm should have reached the wall"
 
 
+def _eef_travel(env, action, steps):
+    td = env.reset()
+    start = env.base_env.privileged_state()["eef_pos"].copy()
+    for _ in range(steps):
+        td["action"] = torch.tensor(action)
+        td = env.step(td)["next"].clone()
+    return env.base_env.privileged_state()["eef_pos"] - start
+
+
+def test_max_eef_delta_scales_the_step_and_the_experts_follow(state_envs):
+    fine = make_robosuite_env("Lift", obs="state", seed=0, max_eef_delta=0.03)
+    try:
+        steps = 8  # sideways along +y, away from the cube and inside the box at both scales
+        coarse_dy = _eef_travel(state_envs("Lift"), [0.0, 1.0, 0.0, -1.0], steps)[1]
+        fine_dy = _eef_travel(fine, [0.0, 1.0, 0.0, -1.0], steps)[1]
+        # The OSC controller lags its per-step targets (a full action travels about 1.3 cm per step at 5 cm), but
+        # its travel is proportional to the target's distance.
+        assert 0.5 < fine_dy / coarse_dy < 0.7, (fine_dy, coarse_dy)
+        assert fine_dy < steps * 0.03
+        fine.set_seed(0)
+        with torch.no_grad():
+            rollout = fine.rollout(fine.base_env.horizon, LiftExpert(fine))
+        assert rollout["next", "success"][-1].item(), "the Lift expert must still succeed at 3 cm per step"
+        with pytest.raises(ValueError, match="max_lift_speed"):
+            LiftExpert(fine, max_lift_speed=0.04)  # faster than the env's step
+    finally:
+        fine.close()
+    with pytest.raises(ValueError, match="max_eef_delta"):
+        make_robosuite_env("Lift", obs="state", max_eef_delta=0.1)
+
+
 def test_non_finite_action_raises_naming_the_task(state_envs, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # mujoco appends its warnings to ./MUJOCO_LOG.TXT
     env = state_envs("Lift")

@@ -16,7 +16,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from torchrl_mpail2.envs.robosuite_env import MAX_EEF_DELTA, RobosuiteEnv, robosuite_base
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv, robosuite_base
 from torchrl_mpail2.experts.human_like import HumanLikeMotion
 
 GRIPPER_OPEN = -1.0
@@ -29,11 +29,6 @@ def _find_robosuite_env(env) -> RobosuiteEnv:
     if base is None:
         raise TypeError(f"Scripted experts need a RobosuiteEnv (possibly transformed), got {type(env).__name__}.")
     return base
-
-
-def _move_towards(eef_pos: np.ndarray, target: np.ndarray, gain: float = 1.5) -> np.ndarray:
-    """Proportional position command in action units; saturates at the env's 5 cm per step."""
-    return np.clip(gain * (target - eef_pos) / MAX_EEF_DELTA, -1.0, 1.0)
 
 
 class _ScriptedExpert(TensorDictModuleBase):
@@ -53,6 +48,11 @@ class _ScriptedExpert(TensorDictModuleBase):
         self.noise_std = noise_std
         self._rng = np.random.default_rng(seed)
         self.motion = HumanLikeMotion(self._rng) if human_like else None
+
+    def move_towards(self, eef_pos: np.ndarray, target: np.ndarray, gain: float = 1.5) -> np.ndarray:
+        """Proportional position command in action units: each step covers ``gain`` times the remaining distance,
+        at most the env's ``max_eef_delta`` (5 cm by default)."""
+        return np.clip(gain * (target - eef_pos) / self.env.max_eef_delta, -1.0, 1.0)
 
     def reset(self) -> None:
         """Starts a new episode (a new human-like style, if any)."""
@@ -97,7 +97,7 @@ class LiftExpert(_ScriptedExpert):
         seed: seed of that noise (and of the human-like styles).
         human_like: vary speed, approach path (a via point beside the cube), drift and pauses per episode.
         max_lift_speed: cap on the upward command while holding the cube, in metres per step (``None``: no cap,
-            the arm rises at up to 5 cm per step). A slow lift fills the demonstrations with grasped cubes at
+            the arm rises at up to ``max_eef_delta`` per step). A slow lift fills the demonstrations with grasped cubes at
             every height between the table and the lift height instead of jumping past them in two steps.
     """
 
@@ -114,8 +114,10 @@ class LiftExpert(_ScriptedExpert):
     def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, max_lift_speed: float | None = None,
                  human_like: bool = False):
         super().__init__(env, noise_std=noise_std, seed=seed, human_like=human_like)
-        if max_lift_speed is not None and not 0.0 < max_lift_speed <= MAX_EEF_DELTA:
-            raise ValueError(f"max_lift_speed must lie in (0, {MAX_EEF_DELTA}] metres per step, got {max_lift_speed}.")
+        delta = self.env.max_eef_delta
+        if max_lift_speed is not None and not 0.0 < max_lift_speed <= delta:
+            raise ValueError(f"max_lift_speed must lie in (0, {delta}] metres per step (the env's max_eef_delta), "
+                             f"got {max_lift_speed}.")
         self.max_lift_speed = max_lift_speed
 
     def scripted_action(self, state: dict[str, np.ndarray]) -> np.ndarray:
@@ -130,19 +132,19 @@ class LiftExpert(_ScriptedExpert):
         fingers_on_cube = self.shut_opening < opening < cube_width + 0.01
         if at_cube and fingers_on_cube:
             target = np.array([cube[0], cube[1], table_height + self.lift_height])
-            command = _move_towards(eef, target)
+            command = self.move_towards(eef, target)
             if self.max_lift_speed is not None:
-                command[2] = min(command[2], self.max_lift_speed / MAX_EEF_DELTA)
+                command[2] = min(command[2], self.max_lift_speed / self.env.max_eef_delta)
             return np.append(command, GRIPPER_CLOSE)
         if at_cube and opening >= cube_width + 0.01:
             # Hold still while the fingers close: moving now would knock the cube away.
-            return np.append(_move_towards(eef, cube), GRIPPER_CLOSE)
+            return np.append(self.move_towards(eef, cube), GRIPPER_CLOSE)
         if horizontal_error > self.aligned_tolerance:
             target_xy = cube[:2] if self.motion is None else self.motion.via_point(cube[:2], eef[:2])
             target = np.array([*target_xy, max(eef[2], cube[2] + self.hover_clearance)])
         else:
             target = cube
-        return np.append(_move_towards(eef, target), GRIPPER_OPEN)
+        return np.append(self.move_towards(eef, target), GRIPPER_OPEN)
 
 
 class PushExpert(_ScriptedExpert):
@@ -191,10 +193,10 @@ class PushExpert(_ScriptedExpert):
             if remaining <= 0:
                 return np.zeros(3)
             target = np.array([cube[0], eef[1] + s * min(remaining + 0.02, 0.1), push_z])
-            return _move_towards(eef, target)
+            return self.move_towards(eef, target)
         if low:
-            return _move_towards(eef, np.array([eef[0], eef[1], travel_z]))
+            return self.move_towards(eef, np.array([eef[0], eef[1], travel_z]))
         pre_push = np.array([cube[0], cube[1] - s * (half + self.standoff)])
         over_pre_push = np.linalg.norm(pre_push - eef[:2]) < 0.01
         target_z = push_z if over_pre_push else max(travel_z, min(eef[2], travel_z + 0.05))
-        return _move_towards(eef, np.append(pre_push, target_z))
+        return self.move_towards(eef, np.append(pre_push, target_z))
