@@ -107,6 +107,17 @@ def _git_commit(where: Path) -> str | None:
         return None
 
 
+def _time_split(summaries: list[dict]) -> dict | None:
+    """Seconds per stage (act, env, update, evaluate, checkpoint, log, total) summed over a seed's launches, with
+    each stage's share of the total; None when no launch recorded its split."""
+    splits = [s["time_split_s"] for s in summaries if s.get("time_split_s")]
+    if not splits:
+        return None
+    seconds = {k: sum(s.get(k, 0.0) for s in splits) for k in dict.fromkeys(k for s in splits for k in s)}
+    total = seconds.get("total") or sum(v for k, v in seconds.items() if k != "total")
+    return {"seconds": seconds, "share": {k: v / total for k, v in seconds.items() if k != "total"} if total else {}}
+
+
 def summarize(name: str, runs_root: Path) -> dict:
     """Aggregates the seeds' evaluations into the results JSON and the curves PNG."""
     seeds = {}
@@ -120,7 +131,8 @@ def summarize(name: str, runs_root: Path) -> dict:
         wall = sum(p["wall_time_s"] for p in parts) + summary.get("wall_time_s", 0.0) if summary else None
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
-            "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary)}
+            "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary),
+            "time_split_s": _time_split(parts + [summary])}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
     common = sorted(set.intersection(*[{e["episode"] for e in s["evals"]} for s in seeds.values()]))
@@ -143,7 +155,8 @@ def summarize(name: str, runs_root: Path) -> dict:
                     "last_eval_episode": d["evals"][-1]["episode"] if d["evals"] else None,
                     "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
                                     for e in d["evals"]],
-                    "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0])}
+                    "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
+                    "time_split": d["time_split_s"]}
                 for s, d in seeds.items()}
     usable = [p for p in per_seed.values() if p["best_success_any_step"] is not None]
     config = next(iter(seeds.values()))["config"]

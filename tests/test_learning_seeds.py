@@ -29,7 +29,8 @@ def _fake_seed(root, seed, evals, finished=True, episodes=100):
     (run / "metrics.jsonl").write_text("".join(json.dumps({"episode": i + 1, "update_ms": 10.0}) + "\n"
                                                for i in range(episodes)))
     if finished:
-        (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0}))
+        split = {"act": 20.0, "update": 30.0, "evaluate": 10.0, "total": 60.0}
+        (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0, "time_split_s": split}))
 
 
 def test_summary_means_bests_and_thresholds_over_seeds(bench, tmp_path):
@@ -45,6 +46,19 @@ def test_summary_means_bests_and_thresholds_over_seeds(bench, tmp_path):
     assert r["episodes_to_50"] == 50 and r["episodes_to_80"] is None
     assert r["episodes"] == [100, 150] and r["seeds"] == [0, 1] and r["all_finished"]
     assert (tmp_path / "results" / "demo.json").exists() and (tmp_path / "results" / "demo.png").exists()
+    split = r["per_seed"][0]["time_split"]
+    assert split["seconds"]["evaluate"] == 10.0 and split["share"]["evaluate"] == pytest.approx(1 / 6)
+
+
+def test_time_split_sums_the_launches_of_a_resumed_seed(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2)])
+    run = tmp_path / "demo" / "seed0"
+    (run / "summary.part0.json").write_text(json.dumps(
+        {"wall_time_s": 40.0, "time_split_s": {"act": 10.0, "update": 10.0, "evaluate": 20.0, "total": 40.0}}))
+    r = bench.summarize("demo", tmp_path)
+    split = r["per_seed"][0]["time_split"]
+    assert split["seconds"] == {"act": 30.0, "update": 40.0, "evaluate": 30.0, "total": 100.0}
+    assert split["share"]["evaluate"] == pytest.approx(0.3) and r["wall_time_s"] == [100.0]
 
 
 def test_a_seed_short_of_its_episodes_is_extended_only_when_asked(bench, tmp_path):
