@@ -247,7 +247,10 @@ def test_update_matches_per_loss_calls(contiguous, images):
             # only the stage that trains a network leaves a gradient on it (frozen ones get none from the actor)
             assert (p.grad is None) == (expected is None), key
             if expected is not None:
-                torch.testing.assert_close(p.grad, expected, atol=1e-5, rtol=1e-4, msg=key)
+                # float32 sums in another order: errors scale with the largest gradient entry (about 1e-6 of it
+                # for the image encoder's layers, whose gradients reach 10-30)
+                atol = max(1e-5, 4e-6 * expected.abs().max().item())
+                torch.testing.assert_close(p.grad, expected, atol=atol, rtol=1e-4, msg=key)
     for (name, p), p_ref in zip(m.named_parameters(), m_ref.parameters()):
         torch.testing.assert_close(p, p_ref, atol=1e-6, rtol=1e-5, msg=name)
     for a, b in zip(loss.value_loss.target_qvalue_network_params.values(True, True),
