@@ -99,6 +99,25 @@ def test_bad_configs_fail_before_training():
         _cfg("train.ablation=PM", "train.update_precision=bf16")
 
 
+@pytest.mark.parametrize("native", [False, True])
+def test_auto_update_precision_is_resolved_for_the_machine_and_saved(native, monkeypatch):
+    from torchrl_mpail2.agents import switches
+    from torchrl_mpail2.trainers.config import resolve_for_run
+
+    monkeypatch.setattr(switches, "runs_bf16_natively", lambda device="cpu": native)
+    cfg = preset("lift_state")
+    assert cfg.train.update_precision == "auto"
+    assert resolve_for_run(cfg, "run").train.update_precision == ("bf16" if native else "float32")
+    model_free = apply_overrides(preset("lift_state"), ["train.ablation=PM"])
+    assert resolve_for_run(model_free, "run").train.update_precision == "float32"  # no bf16 updater there
+    explicit = apply_overrides(preset("lift_state"), ["train.update_precision=bf16"])
+    if native:
+        assert resolve_for_run(explicit, "run").train.update_precision == "bf16"
+    else:
+        with pytest.warns(RuntimeWarning, match="no native bfloat16"):
+            assert resolve_for_run(explicit, "run").train.update_precision == "bf16"  # asked for: kept
+
+
 def _wait_for(predicate, timeout, proc):
     deadline = time.time() + timeout
     while time.time() < deadline:

@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, switches_for
+from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, resolve_update_precision, switches_for
 from torchrl_mpail2.agents.update import MPAIL2Updater
 from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section, migrate_config_data
 from torchrl_mpail2.data import Demonstrations
@@ -42,7 +42,8 @@ class MPAIL2Agent:
         ablation (str): a Table 2 name resolved by :func:`~torchrl_mpail2.agents.switches.switches_for`
             (``"none"``: MPAIL2). Ignored when ``switches`` is given.
         switches (AgentSwitches, optional): the parts to use, directly.
-        update_precision (str): ``float32`` | ``bf16_stop_gradient`` | ``bf16`` (see :class:`MPAIL2Updater`).
+        update_precision (str): ``float32`` | ``bf16_stop_gradient`` | ``bf16`` (see :class:`MPAIL2Updater`) |
+            ``auto`` (``bf16`` where the device runs it natively, else ``float32``: :func:`resolve_update_precision`).
         demos (Demonstrations, optional): set the observation normalisation from the demonstrations and encode
             their keys.
         observation_keys (list[str], optional): the observation keys to encode (default: the demos' keys, else
@@ -75,6 +76,8 @@ class MPAIL2Agent:
         self.switches = switches or switches_for(ablation)
         if update_precision not in UPDATE_PRECISIONS:
             raise ValueError(f"unknown update_precision {update_precision!r}; choose from {UPDATE_PRECISIONS}")
+        if update_precision == "auto" or self.switches.world_model:
+            update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model)
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
         if not self.switches.world_model:
             # the model-free ablations act with a single-step policy, as in the paper's baselines

@@ -5,16 +5,56 @@ the name.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
-__all__ = ["ABLATIONS", "AgentSwitches", "UPDATE_PRECISIONS", "switches_for"]
+import torch
+
+__all__ = ["ABLATIONS", "AgentSwitches", "UPDATE_PRECISIONS", "resolve_update_precision", "runs_bf16_natively",
+           "switches_for"]
 
 #: What an agent may act with: the latent MPPI planner (Algorithm 2) or the first step of the policy's plan.
 ACTORS = ("planner", "policy")
 #: What the reward, value and policy stages train on: the whole replay buffer or the latest episode only.
 POLICY_DATA = ("replay", "latest_episode")
-#: Precisions of the model-based update (see :class:`~torchrl_mpail2.agents.update.MPAIL2Updater`).
-UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16")
+#: Precisions of the model-based update (see :class:`~torchrl_mpail2.agents.update.MPAIL2Updater`); ``auto`` is
+#: ``bf16`` where the device runs bfloat16 natively and ``float32`` elsewhere (:func:`resolve_update_precision`).
+UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16", "auto")
+
+
+def runs_bf16_natively(device: torch.device | str = "cpu") -> bool:
+    """Whether bfloat16 matmuls run in hardware on ``device``: a CUDA device that supports bf16, or a CPU that oneDNN
+    runs bf16 on natively (AVX-512 BW/VL/DQ or AMX on x86, BF16 on Arm). Elsewhere bf16 is emulated: on a
+    2-core AVX2 AMD EPYC a mixed-bf16 ``lift_state`` update took 5458 ms against 370 ms in float32."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+    if device.type != "cpu":
+        return False
+    try:
+        return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):  # a torch build without oneDNN
+        return False
+
+
+def resolve_update_precision(precision: str, device: torch.device | str = "cpu", *, world_model: bool = True) -> str:
+    """The concrete precision of ``precision`` on ``device``: ``auto`` becomes ``bf16`` where bf16 is native (and the
+    agent has a world model), else ``float32``; the others stay, with a warning when they ask for bf16 on a device
+    that emulates it.
+
+    Raises:
+        ValueError: on a precision not in :data:`UPDATE_PRECISIONS`.
+    """
+    if precision not in UPDATE_PRECISIONS:
+        raise ValueError(f"unknown update_precision {precision!r}; choose from {UPDATE_PRECISIONS}")
+    native = runs_bf16_natively(device)
+    if precision == "auto":
+        return "bf16" if native and world_model else "float32"
+    if precision != "float32" and not native:
+        warnings.warn(f"update_precision={precision!r} on {torch.device(device)}, which has no native bfloat16: the "
+                      "updates run emulated, many times slower than float32 (update_precision='auto' picks for you)",
+                      RuntimeWarning, stacklevel=2)
+    return precision
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS
+from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS, resolve_update_precision
 from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.envs.names import OBS_MODES
 from torchrl_mpail2.config import (
@@ -103,7 +103,8 @@ class TrainConfig:
     update_precision: str = "float32"
     """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16_stop_gradient (bf16 autocast for the
     computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
-    optimiser). See docs/results/speed_notes.md for speed and closeness."""
+    optimiser) | auto (bf16 where the device runs bfloat16 natively, float32 elsewhere; the saved config records the
+    choice). See docs/results/speed_notes.md for speed and closeness."""
 
     RANGES: ClassVar[dict[str, Range]] = {
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
@@ -123,7 +124,7 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
-        if self.update_precision != "float32" and not ABLATIONS[self.ablation].world_model:
+        if self.update_precision not in ("float32", "auto") and not ABLATIONS[self.ablation].world_model:
             raise ConfigError(f"update_precision={self.update_precision!r} applies to the model-based updater only, "
                               f"not to the model-free ablation {self.ablation!r}")
         for name in ("env_kwargs", "expert_kwargs"):
@@ -264,10 +265,13 @@ def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str]) -> Exper
     return apply_overrides(cfg, overrides)
 
 
-def resolve_paths(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfig:
-    """A copy of ``cfg`` whose run folder is ``run_dir`` and whose paths are absolute, so that the saved config
-    resumes from any working directory."""
-    demos = cfg.train.demos
-    train = dataclasses.replace(cfg.train, run_dir=str(Path(run_dir).resolve()),
-                                demos=None if demos is None else resolve_demo_source(demos))
+def resolve_for_run(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfig:
+    """A copy of ``cfg`` as a run saves it: its run folder is ``run_dir``, its paths are absolute (the saved config
+    resumes from any working directory), and ``update_precision=auto`` is replaced by what it picks on this
+    machine (a resumed run keeps that choice)."""
+    t = cfg.train
+    precision = resolve_update_precision(t.update_precision, t.device,
+                                         world_model=ABLATIONS[t.ablation].world_model)
+    train = dataclasses.replace(t, run_dir=str(Path(run_dir).resolve()), update_precision=precision,
+                                demos=None if t.demos is None else resolve_demo_source(t.demos))
     return dataclasses.replace(cfg, train=train)

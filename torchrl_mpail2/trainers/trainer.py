@@ -24,7 +24,7 @@ from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
-from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_paths
+from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_for_run
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
@@ -65,7 +65,7 @@ class MPAIL2Trainer:
         run_dir = Path(run_dir or t.run_dir or f"runs/{t.env.replace('/', '_')}-s{t.seed}-{time.strftime('%Y%m%d-%H%M%S')}")
         self.run_folder = RunFolder(run_dir, if_exists)
         try:
-            self._build(resolve_paths(cfg, run_dir), env_fn, demos, agent)
+            self._build(resolve_for_run(cfg, run_dir), env_fn, demos, agent)
         except BaseException:
             self.run_folder.discard()  # a run that fails to start leaves nothing behind
             raise
