@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.agents.switches import UPDATE_PRECISIONS, AgentSwitches, resolve_update_precision, switches_for
+from torchrl_mpail2.agents.switches import AgentSwitches, resolve_update_precision, switches_for
 from torchrl_mpail2.agents.update import MPAIL2Updater
 from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section, migrate_config_data
 from torchrl_mpail2.data import Demonstrations
@@ -74,16 +74,11 @@ class MPAIL2Agent:
                  demos: Demonstrations | None = None, observation_keys: list[str] | None = None,
                  device: torch.device | str = "cpu"):
         self.switches = switches or switches_for(ablation)
-        if update_precision not in UPDATE_PRECISIONS:
-            raise ValueError(f"unknown update_precision {update_precision!r}; choose from {UPDATE_PRECISIONS}")
-        if update_precision == "auto" or self.switches.world_model:
-            update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model)
+        update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model)
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
         if not self.switches.world_model:
             # the model-free ablations act with a single-step policy, as in the paper's baselines
             model = dataclasses.replace(model, horizon=1)
-            if update_precision != "float32":
-                raise ValueError(f"update_precision={update_precision!r} applies to the model-based updater only")
         self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
                                            demos=demos).to(device)
         if self.switches.world_model:

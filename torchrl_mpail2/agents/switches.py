@@ -43,17 +43,20 @@ def resolve_update_precision(precision: str, device: torch.device | str = "cpu",
     that emulates it.
 
     Raises:
-        ValueError: on a precision not in :data:`UPDATE_PRECISIONS`.
+        ValueError: on a precision not in :data:`UPDATE_PRECISIONS`, or a bf16 one without a world model (the
+            model-free updater has no bf16 path).
     """
     if precision not in UPDATE_PRECISIONS:
         raise ValueError(f"unknown update_precision {precision!r}; choose from {UPDATE_PRECISIONS}")
-    native = runs_bf16_natively(device)
     if precision == "auto":
-        return "bf16" if native and world_model else "float32"
-    if precision != "float32" and not native:
-        warnings.warn(f"update_precision={precision!r} on {torch.device(device)}, which has no native bfloat16: the "
-                      "updates run emulated, many times slower than float32 (update_precision='auto' picks for you)",
-                      RuntimeWarning, stacklevel=2)
+        return "bf16" if world_model and runs_bf16_natively(device) else "float32"
+    if precision != "float32":
+        if not world_model:
+            raise ValueError(f"update_precision={precision!r} applies to the model-based updater only")
+        if not runs_bf16_natively(device):
+            warnings.warn(f"update_precision={precision!r} on {torch.device(device)}, which has no native bfloat16: "
+                          "the updates run emulated, many times slower than float32 (update_precision='auto' picks "
+                          "for you)", RuntimeWarning, stacklevel=2)
     return precision
 
 

@@ -270,8 +270,9 @@ def resolve_for_run(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentCon
     resumes from any working directory), and ``update_precision=auto`` is replaced by what it picks on this
     machine (a resumed run keeps that choice)."""
     t = cfg.train
-    precision = resolve_update_precision(t.update_precision, t.device,
-                                         world_model=ABLATIONS[t.ablation].world_model)
+    precision = t.update_precision  # a concrete one is checked (and warned about) where the agent is built
+    if precision == "auto":
+        precision = resolve_update_precision(precision, t.device, world_model=ABLATIONS[t.ablation].world_model)
     train = dataclasses.replace(t, run_dir=str(Path(run_dir).resolve()), update_precision=precision,
                                 demos=None if t.demos is None else resolve_demo_source(t.demos))
     return dataclasses.replace(cfg, train=train)
