@@ -71,6 +71,24 @@ def test_bad_agent_settings_are_refused_by_name():
         MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, ablation="PM", update_precision="bf16")
 
 
+@pytest.mark.parametrize("native", [False, True])
+def test_a_bf16_planner_on_a_device_without_native_bf16_warns_by_setting_name(native, monkeypatch):
+    import warnings
+
+    from torchrl_mpail2.agents import switches
+
+    monkeypatch.setattr(switches, "runs_bf16_natively", lambda device="cpu": native)
+    env = make_env("point_mass")
+    bf16_planner = PlannerConfig(num_candidates=16, num_elites=4, iterations=2, bf16=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        MPAIL2Agent(env.observation_spec, env.action_spec, TINY_MODEL, planner=bf16_planner)
+    emulated = [w for w in caught if "no native bfloat16" in str(w.message)]
+    assert len(emulated) == (0 if native else 1)
+    if emulated:
+        assert issubclass(emulated[0].category, RuntimeWarning) and "planner.bf16=True" in str(emulated[0].message)
+
+
 def test_the_planner_discounts_with_the_loss_gamma():
     from torchrl_mpail2.config import LossConfig
 

@@ -12,7 +12,8 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.agents.switches import AgentSwitches, resolve_update_precision, switches_for
+from torchrl_mpail2.agents.switches import (AgentSwitches, resolve_update_precision, switches_for,
+                                            warn_if_bf16_emulated)
 from torchrl_mpail2.agents.update import MPAIL2Updater
 from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section, migrate_config_data
 from torchrl_mpail2.data import Demonstrations
@@ -76,6 +77,8 @@ class MPAIL2Agent:
         self.switches = switches or switches_for(ablation)
         update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model)
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
+        if planner.bf16 and self.switches.world_model:
+            warn_if_bf16_emulated("planner.bf16=True", device)
         if not self.switches.world_model:
             # the model-free ablations act with a single-step policy, as in the paper's baselines
             model = dataclasses.replace(model, horizon=1)

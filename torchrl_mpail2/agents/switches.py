@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 
 __all__ = ["ABLATIONS", "AgentSwitches", "UPDATE_PRECISIONS", "resolve_update_precision", "runs_bf16_natively",
-           "switches_for"]
+           "switches_for", "warn_if_bf16_emulated"]
 
 #: What an agent may act with: the latent MPPI planner (Algorithm 2) or the first step of the policy's plan.
 ACTORS = ("planner", "policy")
@@ -37,6 +37,13 @@ def runs_bf16_natively(device: torch.device | str = "cpu") -> bool:
         return False
 
 
+def warn_if_bf16_emulated(setting: str, device: torch.device | str = "cpu", hint: str = "") -> None:
+    """A ``RuntimeWarning`` naming ``setting`` when it asks for bfloat16 on a device that emulates it."""
+    if not runs_bf16_natively(device):
+        warnings.warn(f"{setting} on {torch.device(device)}, which has no native bfloat16: it runs emulated, many "
+                      f"times slower than float32{hint}", RuntimeWarning, stacklevel=3)
+
+
 def resolve_update_precision(precision: str, device: torch.device | str = "cpu", *, world_model: bool = True) -> str:
     """The concrete precision of ``precision`` on ``device``: ``auto`` becomes ``bf16`` where bf16 is native (and the
     agent has a world model), else ``float32``; the others stay, with a warning when they ask for bf16 on a device
@@ -53,10 +60,7 @@ def resolve_update_precision(precision: str, device: torch.device | str = "cpu",
     if precision != "float32":
         if not world_model:
             raise ValueError(f"update_precision={precision!r} applies to the model-based updater only")
-        if not runs_bf16_natively(device):
-            warnings.warn(f"update_precision={precision!r} on {torch.device(device)}, which has no native bfloat16: "
-                          "the updates run emulated, many times slower than float32 (update_precision='auto' picks "
-                          "for you)", RuntimeWarning, stacklevel=2)
+        warn_if_bf16_emulated(f"update_precision={precision!r}", device, " (update_precision='auto' picks for you)")
     return precision
 
 
