@@ -1,0 +1,27 @@
+"""Every relative link in the README and under docs/ points at a file or folder of the repository."""
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglob("*.md"))]
+#: [text](target) and ![alt](target); the target ends at whitespace or the closing parenthesis
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def relative_links(page: Path) -> list[str]:
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)  # code blocks hold commands, not links
+    return [t for t in LINK.findall(text) if not re.match(r"[a-z][a-z0-9+.-]*:", t) and not t.startswith("#")]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(page):
+    missing = [t for t in relative_links(page) if not (page.parent / t.split("#")[0]).exists()]
+    assert not missing, f"{page.relative_to(ROOT)} links to missing files: {missing}"
+
+
+def test_the_link_pattern_finds_links_and_skips_urls_and_anchors(tmp_path):
+    page = tmp_path / "p.md"
+    page.write_text("[a](x.md) ![b](img/y.png) [c](https://e.org) [d](#part) [e](z.json#k)\n```\n[f](no.md)\n```\n")
+    assert relative_links(page) == ["x.md", "img/y.png", "z.json#k"]
