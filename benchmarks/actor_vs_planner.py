@@ -8,7 +8,7 @@ and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
 a freshly initialised policy for ``--steps`` Adam steps under three objectives and scores its mean plan again:
 ``actor`` (the package's actor loss: stochastic plans, lambda-return, entropy), ``deterministic_lambda`` (the mean
 plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Writes
-``docs/results/actor_vs_planner.json``.
+``docs/results/diagnostics/actor_vs_planner.json``.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from torchrl_mpail2.trainers import MPAIL2Trainer
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.trainers.config import ExperimentConfig
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 OBJECTIVES = ("actor", "deterministic_lambda", "deterministic_planner")
 
 

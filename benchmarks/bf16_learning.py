@@ -3,7 +3,7 @@
 ``--mode planner`` (default) compares ``planner.bf16=false|true``; ``--mode update`` compares
 ``train.update_precision=float32|bf16`` (mixed-precision learner updates); ``--mode both`` turns both on at once.
 Runs ``python -m torchrl_mpail2.train --preset point_mass ...`` side by side (one thread each), or reads finished
-runs, and writes ``docs/results/<mode>_bf16_learning.{json,md}``.
+runs, and writes ``docs/results/speed/<mode>_bf16_learning.{json,md}``.
 
     python benchmarks/bf16_learning.py                         # both runs (about 8 minutes on 2 cores)
     python benchmarks/bf16_learning.py --mode update
@@ -45,7 +45,7 @@ def main() -> None:
     p.add_argument("--runs", nargs=2, metavar=("FP32_RUN", "BF16_RUN"))
     p.add_argument("--mode", choices=sorted(MODES), default="planner")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=str(ROOT / "docs" / "results"))
+    p.add_argument("--out", default=str(ROOT / "docs" / "results" / "speed"))
     args = p.parse_args()
     if args.runs:
         runs = [Path(r) for r in args.runs]

@@ -2,7 +2,7 @@
 
     python benchmarks/compare_learning.py lift_state_learning lift_state_tpw1_b256_utd1 --out lift_state_comparison
 
-Reads ``docs/results/<name>.json`` for each name and writes ``docs/results/<out>.png``: evaluation success per
+Reads ``docs/results/diary/<name>.json`` for each name and writes ``docs/results/diary/<out>.png``: evaluation success per
 checkpoint, training success over a moving window of 25 episodes, and the task return (robosuite's dense reward,
 which the learner never sees) over the same window. Results written before per-episode curves were stored
 show their evaluation points only.
@@ -17,7 +17,7 @@ import numpy as np
 
 from torchrl_mpail2.trainers.plots import moving_average
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
 
 def label(result: dict, name: str) -> str:
@@ -73,7 +73,7 @@ def plot(names: list[str], out: str, window: int = 25) -> Path:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("names", nargs="+", help="result names under docs/results (without .json)")
+    p.add_argument("names", nargs="+", help="result names under docs/results/diary (without .json)")
     p.add_argument("--out", default="lift_state_comparison")
     args = p.parse_args()
     missing = [n for n in args.names if not (RESULTS / f"{n}.json").exists()]

@@ -10,7 +10,7 @@ For each setting, two planners on the same networks and observations, one eager 
 * ``max_action_difference``: the largest difference between the two planners' actions over the timed calls;
 * ``break_even_calls``: compile time over the time saved per call.
 
-    python benchmarks/compile_speed.py                          # JSON + Markdown in docs/results
+    python benchmarks/compile_speed.py                          # JSON + Markdown in docs/results/speed
     python benchmarks/compile_speed.py --settings lift_state --calls 5
 """
 from __future__ import annotations
@@ -116,7 +116,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--load", default="", help="what else ran on the machine (written into the results)")
-    parser.add_argument("--out", default=str(ROOT / "docs" / "results" / "compile_speed"))
+    parser.add_argument("--out", default=str(ROOT / "docs" / "results" / "speed" / "compile_speed"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     results = {}

@@ -9,7 +9,7 @@ initialisation, frozen, normalised by the training demos) on ``--train`` demonst
 the scripted expert (Gaussian action noise, std 0.3; the same agent set for every style). It is then scored on
 ``--heldout`` unseen expert episodes of the same style. Reported per style: the mean critic gap (expert minus
 agent) on the training demos and on the held-out episodes, and the held-out AUC (the chance that a held-out
-expert transition outscores an agent transition; 0.5 is chance). Writes ``docs/results/critic_generalisation.json``.
+expert transition outscores an agent transition; 0.5 is chance). Writes ``docs/results/diagnostics/critic_generalisation.json``.
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.modules import MPAIL2Modules
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 ENV = "robosuite/Lift"
 STYLES = {"scripted": ({}, None), "human_like": ({"human_like": True}, 10)}
 TRAIN_SEED, HELDOUT_SEED, AGENT_SEED = 1_000_000, 3_000_000, 4_000_000

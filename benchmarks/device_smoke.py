@@ -10,7 +10,7 @@ timed at the paper configuration.
    updates, evaluation, checkpoints).
 3. Speed at the paper configuration (latent 512, hidden [512, 512], N 512, K 64, J 5, H 7, Lift state
    observations): planning calls per second with one env, fp32 and bf16, and the update time at batch 256.
-Writes ``docs/results/device_smoke.json`` (``--out`` to change).
+Writes ``docs/results/speed/device_smoke.json`` (``--out`` to change).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from torchrl_mpail2 import LatentMPPIPlanner, MPAIL2Loss, MPAIL2Updater, Planner
 from torchrl_mpail2.config import LossConfig  # noqa: E402
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "speed"
 
 
 def synchronize(device: torch.device) -> None:

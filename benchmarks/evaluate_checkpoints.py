@@ -6,7 +6,7 @@ checkpoints are selected by evaluating all automatically saved checkpoints").
 Loads each numbered checkpoint's agent on its own (:meth:`MPAIL2Agent.from_checkpoint`: no trainer, no replay;
 the run folder is only read) and plays ``--episodes`` deterministic episodes of the fixed evaluation set
 (``train.eval_seed + i``, the planner's noise seeded per episode: the same episodes as the run's own evaluations).
-Writes ``RUN_DIR/checkpoint_evals.json`` and, with ``--name``, ``docs/results/<name>_checkpoints.json``: success
+Writes ``RUN_DIR/checkpoint_evals.json`` and, with ``--name``, ``docs/results/diary/<name>_checkpoints.json``: success
 at the last step, success at any step (the paper's definition) and the task return per checkpoint.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import TrainConfig
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
 
 def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
@@ -66,7 +66,7 @@ def main() -> None:
     p.add_argument("run_dir", type=Path)
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--name", help="also write docs/results/<name>_checkpoints.json")
+    p.add_argument("--name", help="also write docs/results/diary/<name>_checkpoints.json")
     args = p.parse_args()
     if args.episodes <= 0:
         raise SystemExit("--episodes must be > 0")

@@ -9,7 +9,7 @@ scores two copies with the planner's own return (learned reward over H steps plu
 the gripper command held at +1 (close) and one at -1 (open) for all H steps. Robosuite's Panda gripper moves by
 the sign of the command, so a planner whose return prefers -1 here lets the cube go.
 
-Writes ``RUN_DIR/grasp_preference.json`` and, with ``--name``, ``docs/results/<name>_grasp_preference.json``:
+Writes ``RUN_DIR/grasp_preference.json`` and, with ``--name``, ``docs/results/diary/<name>_grasp_preference.json``:
 per checkpoint, the mean return difference (close minus open) split into its learned-reward part (H discounted
 steps) and its terminal-value part, the fraction of states that prefer closing, the
 quartiles of the planned first gripper command, and the evaluation success from ``checkpoint_evals.json`` if
@@ -73,7 +73,7 @@ def main() -> None:
     p.add_argument("run_dir", type=Path)
     p.add_argument("--states", type=int, default=64)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--name", help="also write docs/results/<name>_grasp_preference.json")
+    p.add_argument("--name", help="also write docs/results/diary/<name>_grasp_preference.json")
     args = p.parse_args()
     evals_path = args.run_dir / "checkpoint_evals.json"
     evals = {r["checkpoint"]: r for r in json.loads(evals_path.read_text())["checkpoints"]} if evals_path.exists() else {}

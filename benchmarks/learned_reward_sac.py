@@ -7,7 +7,7 @@ scratch folder. Then, per seed, ``SACLoss`` learns from ``("next", "learned_rewa
 :class:`~torchrl_mpail2.agents.LearnedRewardTransform`; the task reward is only logged. Each SAC actor (its mean),
 SAC on the same networks untrained (the control, for the first ``--controls`` seeds) and a uniform random policy
 play the same 20 fixed evaluation episodes (env seeds ``2_000_000 + i``). Writes
-``docs/results/learned_reward_sac.json``: success at any step and at the last step per seed, their means, the
+``docs/results/diagnostics/learned_reward_sac.json``: success at any step and at the last step per seed, their means, the
 MPAIL2 checkpoint's own evaluation, and wall times.
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ from torchrl_mpail2.modules import make_mpail2_modules
 from torchrl_mpail2.trainers import MPAIL2Trainer, TrainConfig, apply_overrides, preset
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 EVAL_SEED = TrainConfig().eval_seed  # the fixed evaluation episodes of every run
 
 

@@ -2,8 +2,8 @@
 
     python benchmarks/learning.py --budget-min 90 [section.field=value ...]
 
-Trains the ``lift_state`` preset under a wall-clock budget, then writes ``docs/results/<name>.json`` (episodes,
-env steps, wall time, best/last evaluation success, the config) and ``docs/results/<name>_curves.png``.
+Trains the ``lift_state`` preset under a wall-clock budget, then writes ``docs/results/diary/<name>.json`` (episodes,
+env steps, wall time, best/last evaluation success, the config) and ``docs/results/diary/<name>_curves.png``.
 Re-running with ``--summarize RUN_DIR`` rewrites the results from a run folder (e.g. one still going);
 ``--resume RUN_DIR --budget-min M --name NAME`` continues a run for M more minutes and writes NAME.
 """
@@ -21,7 +21,7 @@ import torch
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, plot_run, read_jsonl
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
 
 def summarize(run_dir: Path, name: str, extra: dict | None = None) -> dict:

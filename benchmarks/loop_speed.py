@@ -9,7 +9,7 @@ episodes), one after the other so that no two share the cores. It reports env st
 run and the trainer's split of the wall time (``summary.json``'s ``time_split_s``: planning, env, update,
 evaluation, checkpoint, logging). ``--num-envs`` adds runs collecting from several environments at once
 (``train.num_envs``); every run then starts with the same random warm-up (``max(--num-envs)`` episodes), so the
-planned episodes are the same in number. Writes ``docs/results/<name>.json`` and ``<name>.md`` (``--name``, default
+planned episodes are the same in number. Writes ``docs/results/speed/<name>.json`` and ``<name>.md`` (``--name``, default
 ``loop_speed``). Run it on a quiet machine: anything else running slows every figure (say what was).
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "docs" / "results"
+RESULTS = ROOT / "docs" / "results" / "speed"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 
 

@@ -19,7 +19,7 @@ Also: useful GFLOP per planning call against the machine's fp32 / bf16 GEMM ceil
 the cost of ``validate_observations``, and bf16 plan quality (first-action distance to the fp32 planner on the same
 seed and inputs, next to the distance between two fp32 seeds; elite overlap when scoring the same candidates).
 
-    python benchmarks/planner_speed.py                      # JSON + Markdown in docs/results
+    python benchmarks/planner_speed.py                      # JSON + Markdown in docs/results/speed
     python benchmarks/planner_speed.py --settings state --calls 3
 """
 from __future__ import annotations
@@ -232,7 +232,7 @@ def main() -> None:
     p.add_argument("--calls", type=int, default=5)
     p.add_argument("--threads", type=int, default=torch.get_num_threads())
     p.add_argument("--skip", default="", help="comma-separated planner names not to time")
-    p.add_argument("--out", default=str(ROOT / "docs" / "results"))
+    p.add_argument("--out", default=str(ROOT / "docs" / "results" / "speed"))
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     load_start = [round(x, 2) for x in os.getloadavg()]

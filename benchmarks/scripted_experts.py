@@ -1,7 +1,7 @@
 """Success rate and speed of the scripted robosuite experts (state observations).
 
 Runs seeded episodes of Lift, Push and PushMirrored with :class:`LiftExpert` / :class:`PushExpert`, prints a
-table and writes ``docs/results/scripted_experts.json``. An episode counts as a success when the env's
+table and writes ``docs/results/diagnostics/scripted_experts.json``. An episode counts as a success when the env's
 ``"success"`` flag is set at its last step (the cube is still lifted / still past the line at the horizon).
 
 Usage::
@@ -24,7 +24,7 @@ from torchrl_mpail2.envs.names import ROBOSUITE_TASKS as TASKS
 from torchrl_mpail2.envs.robosuite_env import make_robosuite_env
 from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert
 
-RESULTS_PATH = Path(__file__).resolve().parents[1] / "docs" / "results" / "scripted_experts.json"
+RESULTS_PATH = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics" / "scripted_experts.json"
 WARMUP_STEPS = 20  # robosuite's first steps include numba compilation
 
 

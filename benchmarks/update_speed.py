@@ -11,7 +11,7 @@ window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``o
 ``one_transition_per_window_mixed_bf16`` (``MPAIL2Updater(bf16=True)``: every stage's forward pass under bf16
 autocast, float32 weights, gradients and optimisers).
 
-    python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results
+    python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
 """
 from __future__ import annotations
@@ -172,7 +172,7 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=2)
     p.add_argument("--threads", type=int, default=torch.get_num_threads())
     p.add_argument("--profile", action="store_true")
-    p.add_argument("--out", default=str(ROOT / "docs" / "results"))
+    p.add_argument("--out", default=str(ROOT / "docs" / "results" / "speed"))
     p.add_argument("--merge", action="store_true", help="keep the other settings already in update_speed.json")
     args = p.parse_args()
     torch.set_num_threads(args.threads)

@@ -76,7 +76,7 @@ class MPAIL2Updater:
         bf16 (bool): mixed precision for the whole update: each stage's forward pass (gradient penalty and
             stop-gradient parts included) runs under bfloat16 autocast, exited before the backward pass and the
             optimiser step; parameters, gradients, Adam's moments and the Polyak targets stay float32. Implies
-            ``bf16_stop_gradient``. 2-3x faster on CPUs with AVX-512 bf16 (docs/results/speed_notes.md); losses
+            ``bf16_stop_gradient``. 2-3x faster on CPUs with AVX-512 bf16 (docs/results/speed/speed_notes.md); losses
             move by up to about 2% (relative) on the test batches. Defaults to False.
 
     Examples:

@@ -104,7 +104,7 @@ class TrainConfig:
     """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16_stop_gradient (bf16 autocast for the
     computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
     optimiser) | auto (bf16 where the device runs bfloat16 natively, float32 elsewhere; the saved config records the
-    choice). See docs/results/speed_notes.md for speed and closeness."""
+    choice). See docs/results/speed/speed_notes.md for speed and closeness."""
 
     RANGES: ClassVar[dict[str, Range]] = {
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
