@@ -22,10 +22,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/
 
 from test_robosuite_hdf5 import _record_with_robosuites_writer  # noqa: E402
-from torchrl_mpail2.envs.robosuite_env import _OSC_POSITION_ARM, CONTROL_FREQ_HZ  # noqa: E402
+from torchrl_mpail2.envs.robosuite_control import CONTROL_FREQ_HZ, OSC_POSITION_ARM  # noqa: E402
 
 ENV_INFO = {"env_name": "Lift", "robots": "Panda", "control_freq": CONTROL_FREQ_HZ, "reward_shaping": True,
-            "controller_configs": {"type": "BASIC", "body_parts": {"right": dict(_OSC_POSITION_ARM)}}}
+            "controller_configs": {"type": "BASIC", "body_parts": {"right": dict(OSC_POSITION_ARM)}}}
 
 if __name__ == "__main__":
     out = Path(sys.argv[1])

@@ -3,16 +3,8 @@
 robosuite's own ``GymWrapper`` reports the horizon end as ``terminated`` (wrong for bootstrapping) and drops
 the success flag, so this is a small :class:`~torchrl.envs.EnvBase` of its own.
 
-Control: robosuite ``OSC_POSITION`` at 20 Hz. An action in ``[-1, 1]`` per axis is an end-effector
-displacement target of up to 5 cm per step (robosuite's default ``output_max``; ``max_eef_delta`` shrinks it),
-relative to the current end-effector position. The controller lags its targets: a full action held along one
-axis moves the hand 0.5, 0.9, 1.0, ... 1.3 cm over its first steps (Lift, seed 0), in proportion to the target. Lift adds a gripper command (-1 open, +1 close); Push keeps the gripper closed so the
-fingers act as a rigid pusher.
-
-Workspace box: the commanded displacement is shortened so that the target stays inside
-``x, y in [-0.25, 0.25]``, ``z in [0.81, 1.15]`` (world frame, metres; table top at ``z = 0.8``, table centre
-at the origin, robot base at ``x = -0.56``). The floor of 1 cm keeps the closed fingers off the table while
-still reaching a 4-5 cm cube's centre.
+Control (``OSC_POSITION`` at 20 Hz, actions as end-effector displacement targets inside a workspace box, the
+gripper modes): :mod:`torchrl_mpail2.envs.robosuite_control`.
 
 Observation keys (flat, float32 unless stated):
 
@@ -51,23 +43,19 @@ from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
 from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
+from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
+    CONTROL_FREQ_HZ, GRIPPER_CLOSED, MAX_EEF_DELTA, OSC_POSITION_ARM, binary_gripper_state, check_control_settings,
+    position_command,
+)
 from torchrl_mpail2.envs import push_task  # noqa: E402, F401  (registers Push / PushMirrored, patches mujoco compat)
 
 DEFAULT_HORIZON = {"Lift": 100, "Push": 100, "PushMirrored": 100}
-CONTROL_FREQ_HZ = 20
 IMAGE_SIZE = 64
 EXTERNAL_CAMERA = "agentview"
 WRIST_CAMERA = "robot0_eye_in_hand"
-MAX_EEF_DELTA = 0.05  # metres per unit action: robosuite's OSC_POSITION output_max
 #: Side of the frames of :meth:`RobosuiteEnv.render` (evaluation videos), pixels.
 RENDER_SIZE = 256
-WORKSPACE_LOW = np.array([-0.25, -0.25, 0.81])
-WORKSPACE_HIGH = np.array([0.25, 0.25, 1.15])
-GRIPPER_CLOSED = 1.0
 PROPRIO_DIM = 26
-#: ``integrating``: robosuite's Panda gripper, each step moves its internal command by 0.2 towards the sign of
-#: the action (up to ten steps from open to closed); ``binary``: the sign of the action opens or closes it at once.
-GRIPPER_MODES = ("integrating", "binary")
 
 # mujoco warnings that mean the physics or the commanded torques went non-finite or diverged.
 _INSTABILITY_WARNINGS = {
@@ -75,25 +63,6 @@ _INSTABILITY_WARNINGS = {
     "BADQPOS": mujoco.mjtWarning.mjWARN_BADQPOS,
     "BADQVEL": mujoco.mjtWarning.mjWARN_BADQVEL,
     "BADCTRL": mujoco.mjtWarning.mjWARN_BADCTRL,
-}
-
-_OSC_POSITION_ARM = {
-    "type": "OSC_POSITION",
-    "input_max": 1,
-    "input_min": -1,
-    "output_max": [MAX_EEF_DELTA] * 3,
-    "output_min": [-MAX_EEF_DELTA] * 3,
-    "kp": 150,
-    "damping_ratio": 1,
-    "impedance_mode": "fixed",
-    "kp_limits": [0, 300],
-    "damping_ratio_limits": [0, 10],
-    "position_limits": None,
-    "input_type": "delta",
-    "input_ref_frame": "base",
-    "interpolation": None,
-    "ramp_ratio": 0.2,
-    "gripper": {"type": "GRIP"},
 }
 
 
@@ -115,13 +84,14 @@ class RobosuiteEnv(EnvBase):
         horizon: steps per episode before ``truncated``; defaults to :data:`DEFAULT_HORIZON` of the task.
         seed: seeds robosuite at construction (Lift's cube size is drawn then) and the first resets.
         device: device of the output tensors.
-        gripper: one of :data:`GRIPPER_MODES` (``"integrating"``, robosuite's own, by default).
+        gripper: one of :data:`~torchrl_mpail2.envs.robosuite_control.GRIPPER_MODES` (``"integrating"``,
+            robosuite's own, by default).
         observe_gripper_command: append the gripper's current command to ``"proprio"``.
         max_eef_delta: end-effector displacement of a unit action, metres per step, in ``(0, 0.05]``
-            (:data:`MAX_EEF_DELTA`, robosuite's ``output_max``, by default). A smaller value gives finer steps
-            for the same action noise and slows the hand in proportion (the scripted Lift expert first succeeds
-            at steps 33 / 31 / 49 of seeds 0-2 at 5 cm, 47 / 45 / 82 at 3 cm); demos recorded by the scripted
-            experts in such an env move with the same scale.
+            (:data:`~torchrl_mpail2.envs.robosuite_control.MAX_EEF_DELTA`, robosuite's ``output_max``, by
+            default). A smaller value gives finer steps for the same action noise and slows the hand in
+            proportion (the scripted Lift expert first succeeds at steps 33 / 31 / 49 of seeds 0-2 at 5 cm,
+            47 / 45 / 82 at 3 cm); demos recorded by the scripted experts in such an env move with the same scale.
 
     Raises:
         ValueError: on an unknown task, observation mode or gripper mode, or a ``max_eef_delta`` outside
@@ -151,11 +121,7 @@ class RobosuiteEnv(EnvBase):
         max_eef_delta: float = MAX_EEF_DELTA,
     ):
         _check_names(task, obs)
-        if not 0.0 < float(max_eef_delta) <= MAX_EEF_DELTA:
-            raise ValueError(f"max_eef_delta must lie in (0, {MAX_EEF_DELTA}] metres per step, got {max_eef_delta!r}.")
-        self.max_eef_delta = float(max_eef_delta)
-        if gripper not in GRIPPER_MODES:
-            raise ValueError(f"Unknown gripper mode {gripper!r}; valid modes: {', '.join(GRIPPER_MODES)}.")
+        self.max_eef_delta = check_control_settings(gripper, max_eef_delta)
         self.gripper_mode = gripper
         self.observe_gripper_command = bool(observe_gripper_command)
         super().__init__(device=device, batch_size=torch.Size([]))
@@ -170,7 +136,7 @@ class RobosuiteEnv(EnvBase):
         self._sim_env = robosuite.make(
             task,
             robots="Panda",
-            controller_configs={"type": "BASIC", "body_parts": {"right": dict(_OSC_POSITION_ARM)}},
+            controller_configs={"type": "BASIC", "body_parts": {"right": dict(OSC_POSITION_ARM)}},
             use_camera_obs=uses_cameras,
             has_offscreen_renderer=uses_cameras,
             has_renderer=False,
@@ -287,7 +253,7 @@ class RobosuiteEnv(EnvBase):
         """Advances the gripper controller's stored command as a step with robosuite action ``sim_action`` would
         (what ``observe_gripper_command`` reports), without stepping the simulation."""
         if self.gripper_mode == "binary":
-            self._gripper.current_action = np.array([-1.0, 1.0]) * np.sign(sim_action[-1])
+            self._gripper.current_action = binary_gripper_state(sim_action[-1])
         else:
             self._gripper.format_action(np.asarray(sim_action[-1:], dtype=np.float64))
 
@@ -345,16 +311,11 @@ class RobosuiteEnv(EnvBase):
         """Scale the displacement by ``max_eef_delta``, clip it to the workspace box; append the fixed gripper for
         Push."""
         action = action.detach().to("cpu", torch.float64).numpy().reshape(-1)
-        eef_pos = self.privileged_state()["eef_pos"]
-        target = np.clip(eef_pos + self.max_eef_delta * action[:3], WORKSPACE_LOW, WORKSPACE_HIGH)
-        # NaN passes through on purpose: the step then fails loudly instead of silently doing nothing.
-        # robosuite's controller keeps its own scale (MAX_EEF_DELTA per unit of its input).
-        position_action = np.clip((target - eef_pos) / MAX_EEF_DELTA, -1.0, 1.0)
-        position_action[np.isnan(action[:3])] = np.nan
+        position_action = position_command(action, self.privileged_state()["eef_pos"], self.max_eef_delta)
         gripper_action = [GRIPPER_CLOSED] if self.is_push else action[3:4]
         if self.gripper_mode == "binary" and not np.isnan(gripper_action[0]):
             # robosuite adds 0.2 * sign(action) to the stored command each step: start it at the target already
-            self._gripper.current_action = np.array([-1.0, 1.0]) * np.sign(gripper_action[0])
+            self._gripper.current_action = binary_gripper_state(gripper_action[0])
         return np.concatenate([position_action, gripper_action])
 
     @property
