@@ -216,3 +216,13 @@ def test_init_from_transfers_everything_or_only_the_world_model(tmp_path, monkey
             same = all(torch.equal(v, source.agent.modules.state_dict()[f"{part}.{k}"])
                        for k, v in getattr(target.agent.modules, part).state_dict().items())
             assert same == (part in copied), (transfer, part)
+    with pytest.raises(ValueError, match="transfer must be one of"):
+        target.init_from(ckpt, "policy")
+
+
+def test_resume_names_a_missing_or_broken_config_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="config.json is missing"):
+        MPAIL2Trainer.resume(tmp_path)
+    (tmp_path / "config.json").write_text("{not json")
+    with pytest.raises(ValueError, match="config.json is not valid JSON"):
+        MPAIL2Trainer.resume(tmp_path)

@@ -27,6 +27,8 @@ from torchrl_mpail2.planners.policy_actor import PolicyActor, WarmupSwitch
 __all__ = ["MPAIL2Agent"]
 #: The parts of :meth:`MPAIL2Agent.state_dict` (a training checkpoint's ``state.pt`` holds them at its top level).
 AGENT_STATE_KEYS = ("modules", "loss", "updater", "planner", "observation_keys")
+#: What :meth:`MPAIL2Agent.transfer_from` copies from another run: everything, or only the world model.
+TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 
 
 class MPAIL2Agent:
@@ -119,6 +121,20 @@ class MPAIL2Agent:
             self.updater.load_state_dict(state["updater"])
         if self.planner is not None and state.get("planner") is not None:
             self.planner.set_extra_state(state["planner"])
+
+    def transfer_from(self, path: str | Path, transfer: str = "all") -> None:
+        """Copies the networks of another run's checkpoint: ``all`` of them (the value targets too) or only the
+        ``world-model`` (encoder and dynamics); optimisers and loss state stay as they are."""
+        if transfer not in TRANSFER_PARTS:
+            raise ValueError(f"transfer must be one of {sorted(TRANSFER_PARTS)}, got {transfer!r}")
+        weights = ckpt.read_checkpoint(path)["modules"]
+        for part in TRANSFER_PARTS[transfer]:
+            prefix = part + "."
+            getattr(self.modules, part).load_state_dict(
+                {k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
+        if transfer == "all":
+            value_loss = self.loss.value_loss
+            value_loss.target_qvalue_network_params.data.update_(value_loss.qvalue_network_params.data)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, env=None, *, with_optimizers: bool = False,

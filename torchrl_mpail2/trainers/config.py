@@ -276,3 +276,20 @@ def resolve_for_run(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentCon
     train = dataclasses.replace(t, run_dir=str(Path(run_dir).resolve()), update_precision=precision,
                                 demos=None if t.demos is None else resolve_demo_source(t.demos))
     return dataclasses.replace(cfg, train=train)
+
+
+def read_run_config(run_dir: str | Path) -> ExperimentConfig:
+    """The config a run saved (``RUN/config.json``), to resume it.
+
+    Raises:
+        FileNotFoundError: ``run_dir`` holds no ``config.json`` (not a run folder).
+        ValueError: the file is not valid JSON (the message names it).
+    """
+    config_file = Path(run_dir) / "config.json"
+    if not config_file.is_file():
+        raise FileNotFoundError(f"cannot resume {run_dir}: {config_file} is missing (not a run folder?)")
+    try:
+        data = json.loads(config_file.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"cannot resume {run_dir}: {config_file} is not valid JSON ({error})") from error
+    return ExperimentConfig.from_dict(data)

@@ -24,7 +24,7 @@ from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
-from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, resolve_for_run
+from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, read_run_config, resolve_for_run
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
@@ -32,8 +32,6 @@ from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
 
 log = logging.getLogger(__name__)
-#: What ``--transfer`` copies from another run: everything, or only the world model.
-TRANSFER_PARTS = {"all": ("encoder", "dynamics", "reward", "value", "policy"), "world-model": ("encoder", "dynamics")}
 
 
 class MPAIL2Trainer:
@@ -205,15 +203,8 @@ class MPAIL2Trainer:
             ckpt.load_replay(self.replay, path)
 
     def init_from(self, path: str | Path, transfer: str = "all") -> None:
-        """Copies weights of another run's checkpoint: ``all`` components or only the ``world-model``."""
-        if transfer not in TRANSFER_PARTS:
-            raise ValueError(f"transfer must be one of {sorted(TRANSFER_PARTS)}, got {transfer!r}")
-        weights = ckpt.read_checkpoint(path)["modules"]
-        for part in TRANSFER_PARTS[transfer]:
-            prefix = part + "."
-            getattr(self.agent.modules, part).load_state_dict({k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
-        if transfer == "all":
-            self.agent.loss.value_loss.target_qvalue_network_params.data.update_(self.agent.loss.value_loss.qvalue_network_params.data)
+        """Copies weights of another run's checkpoint (:meth:`MPAIL2Agent.transfer_from`)."""
+        self.agent.transfer_from(path, transfer)
 
     @classmethod
     def resume(cls, run_dir: str | Path, overrides: list[str] | None = None, **kwargs) -> "MPAIL2Trainer":
@@ -225,14 +216,7 @@ class MPAIL2Trainer:
         e.g. ``["train.total_episodes=400"]`` to extend a finished run.
         """
         run_dir = Path(run_dir)
-        config_file = run_dir / "config.json"
-        if not config_file.is_file():
-            raise FileNotFoundError(f"cannot resume {run_dir}: {config_file} is missing (not a run folder?)")
-        try:
-            data = json.loads(config_file.read_text())
-        except json.JSONDecodeError as error:
-            raise ValueError(f"cannot resume {run_dir}: {config_file} is not valid JSON ({error})") from error
-        cfg = apply_resume_overrides(ExperimentConfig.from_dict(data), overrides or [])
+        cfg = apply_resume_overrides(read_run_config(run_dir), overrides or [])
         trainer = cls(cfg, run_dir=run_dir, if_exists="resume", **kwargs)
         try:
             checkpoint = ckpt.find_resumable(run_dir / "checkpoints")
