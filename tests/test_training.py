@@ -1,4 +1,5 @@
 """End-to-end: MPAIL2 learns the point mass from observation-only demonstrations; runs resume after a kill."""
+import dataclasses
 import json
 import os
 import signal
@@ -13,7 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.envs import make_env
-from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from torchrl_mpail2.trainers import ExperimentConfig, MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.data.checkpoint import read_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,6 +98,27 @@ def test_bad_configs_fail_before_training():
         _cfg("train.update_precision=fp16")
     with pytest.raises(ConfigError, match="model-based updater only"):
         _cfg("train.ablation=PM", "train.update_precision=bf16")
+
+
+def test_the_policy_horizon_is_derived_saved_and_checked():
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.trainers.config import resolve_for_run
+
+    cfg = preset("point_mass")
+    assert cfg.model.policy_horizon is None
+    assert resolve_for_run(cfg, "run").model.policy_horizon == cfg.model.horizon
+    model_free = resolve_for_run(apply_overrides(cfg, ["train.ablation=PM"]), "run")
+    assert (model_free.model.horizon, model_free.model.policy_horizon) == (cfg.model.horizon, 1)  # windows keep H
+    saved = ExperimentConfig.from_dict(json.loads(model_free.to_json()))
+    assert saved.model.policy_horizon == 1
+    with pytest.raises(ValueError, match="model.policy_horizon=1 contradicts model.horizon=5"):
+        resolve_for_run(apply_overrides(cfg, ["model.policy_horizon=1"]), "run")
+    env = make_env("point_mass")
+    agent = MPAIL2Agent(env.observation_spec, env.action_spec, saved.model, saved.loss, saved.planner, ablation="PM")
+    assert agent.modules.policy.net.horizon == 1
+    with pytest.raises(ValueError, match="model.policy_horizon=3 contradicts"):
+        MPAIL2Agent(env.observation_spec, env.action_spec, dataclasses.replace(saved.model, policy_horizon=3),
+                    ablation="PM")
 
 
 @pytest.mark.parametrize("native", [False, True])

@@ -157,7 +157,11 @@ class ModelConfig:
     reward_latent_keys: tuple[str, ...] | None = None
     """Observation keys whose latent blocks the reward reads (compartmentalised mode only; None = all)."""
     horizon: int = 7
-    """Planning horizon H: length of the policy's plans and of the dynamics loss windows."""
+    """Planning horizon H: length of the policy's plans and of the replay windows (dynamics loss, value targets)."""
+    policy_horizon: int | None = None
+    """Length of the policy's plans as the agent builds it: ``horizon``, or 1 for the model-free ablations (their
+    replay windows keep ``horizon``). None derives it; a run's saved config records the derived value, and any other
+    value is refused when the agent is built."""
     num_q: int = 5
     """Size E of the Q-ensemble."""
     obs_clip: float = 5.0
@@ -169,7 +173,7 @@ class ModelConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "latent_dim": POSITIVE, "hidden_dims": POSITIVE, "vector_coder_hidden": POSITIVE, "coder_dim": POSITIVE,
-        "cnn_channels": POSITIVE, "horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
+        "cnn_channels": POSITIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
         "log_std_min": FINITE, "log_std_max": FINITE,
     }
 

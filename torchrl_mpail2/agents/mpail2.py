@@ -81,9 +81,9 @@ class MPAIL2Agent:
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
         if planner.bf16 and self.switches.world_model:
             warn_if_bf16_emulated("planner.bf16=True", device)
-        if not self.switches.world_model:
-            # the model-free ablations act with a single-step policy, as in the paper's baselines
-            model = dataclasses.replace(model, horizon=1)
+        policy_horizon = self.switches.policy_horizon(model.horizon, model.policy_horizon)
+        # the model-free ablations act with a single-step policy, as in the paper's baselines
+        model = dataclasses.replace(model, horizon=policy_horizon, policy_horizon=policy_horizon)
         self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
                                            demos=demos).to(device)
         if self.switches.world_model:

@@ -96,6 +96,19 @@ class AgentSwitches:
     def latest_episode_only(self) -> bool:
         return self.policy_data == "latest_episode"
 
+    def policy_horizon(self, horizon: int, requested: int | None = None) -> int:
+        """Length of the policy's plans for a planning horizon ``horizon``: ``horizon`` with a world model, 1 without
+        (the model-free ablations act with a single-step policy, as the paper's baselines).
+
+        Raises:
+            ValueError: ``requested`` (``ModelConfig.policy_horizon``) is neither None nor that length.
+        """
+        length = horizon if self.world_model else 1
+        if requested not in (None, length):
+            raise ValueError(f"model.policy_horizon={requested} contradicts model.horizon={horizon} with "
+                             f"world_model={self.world_model} (the policy plans {length} steps); leave it None")
+        return length
+
 
 #: The paper's Table 2 names, as presets of the switches.
 ABLATIONS: dict[str, AgentSwitches] = {

@@ -267,15 +267,18 @@ def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str]) -> Exper
 
 def resolve_for_run(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentConfig:
     """A copy of ``cfg`` as a run saves it: its run folder is ``run_dir``, its paths are absolute (the saved config
-    resumes from any working directory), and ``update_precision=auto`` is replaced by what it picks on this
-    machine (a resumed run keeps that choice)."""
+    resumes from any working directory), ``update_precision=auto`` is replaced by what it picks on this machine (a
+    resumed run keeps that choice) and ``model.policy_horizon`` by the plan length of the policy the agent builds
+    (1 for the model-free ablations)."""
     t = cfg.train
     precision = t.update_precision  # a concrete one is checked (and warned about) where the agent is built
     if precision == "auto":
         precision = resolve_update_precision(precision, t.device, world_model=ABLATIONS[t.ablation].world_model)
     train = dataclasses.replace(t, run_dir=str(Path(run_dir).resolve()), update_precision=precision,
                                 demos=None if t.demos is None else resolve_demo_source(t.demos))
-    return dataclasses.replace(cfg, train=train)
+    policy_horizon = ABLATIONS[t.ablation].policy_horizon(cfg.model.horizon, cfg.model.policy_horizon)
+    model = dataclasses.replace(cfg.model, policy_horizon=policy_horizon)
+    return dataclasses.replace(cfg, train=train, model=model)
 
 
 def read_run_config(run_dir: str | Path) -> ExperimentConfig:
