@@ -1,3 +1,5 @@
+import os
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -7,6 +9,14 @@ from torchrl_mpail2.modules import MPAIL2Modules
 
 TINY = dict(latent_dim=16, hidden_dims=(32, 32), coder_dim=32, vector_coder_hidden=32, cnn_channels=8, horizon=3)
 BATCH_SHAPES = [(), (4,), (2, 3)]
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (``-n auto`` in pyproject.toml) each worker runs one torch thread, and so do the Python
+    processes the tests start, so that the workers together use the cores once."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ["OMP_NUM_THREADS"] = "1"
+        torch.set_num_threads(1)
 
 
 @pytest.fixture(autouse=True)
