@@ -74,11 +74,13 @@ def agreement(device: torch.device, setting_name: str, planner_cfg: PlannerConfi
             "losses_cpu": losses["cpu"], "losses_device": losses["device"]}
 
 
-def train_two_episodes(device: torch.device) -> dict:
+def train_two_episodes(device: torch.device, utd: float = 1.0) -> dict:
+    """Two point-mass episodes (one of warm-up) at ``utd`` updates per step, then an evaluation of two episodes."""
     with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):  # scripted demos go to scratch/demos
         cfg = apply_overrides(preset("point_mass"), {
             "train.progress": False, "train.logger": "none", "train.num_demos": 2, "train.total_episodes": 2,
             "train.warmup_episodes": 1, "train.eval_every": 2, "train.eval_episodes": 2, "train.device": str(device),
+            "train.utd": utd,
             "train.run_dir": f"{scratch}/run"})
         start = time.perf_counter()
         summary = MPAIL2Trainer(cfg).train()
@@ -127,7 +129,7 @@ def main() -> None:
               else platform.processor() or platform.machine(), "torch": torch.__version__, "quick": args.quick}
     result["agreement"] = agreement(device, "state", small if args.quick else PlannerConfig(), 16 if args.quick else 256)
     print(json.dumps(result["agreement"]), flush=True)
-    result["training"] = train_two_episodes(device)
+    result["training"] = train_two_episodes(device, utd=0.2 if args.quick else 1.0)
     print(json.dumps(result["training"]), flush=True)
     result["speed_paper_config"] = speed(device, calls=3 if args.quick else 50, updates=2 if args.quick else 20,
                                          batch=32 if args.quick else 256)

@@ -69,11 +69,12 @@ def main() -> None:
         if overrides:
             raise SystemExit(f"--resume continues a run with its saved config; drop the overrides {overrides}")
         # the budget counts from this call; the saved config.json records it
-        trainer = MPAIL2Trainer.resume(args.resume, [f"train.max_wall_s={args.budget_min * 60}"])
+        trainer = MPAIL2Trainer.resume(args.resume, {"train.max_wall_s": args.budget_min * 60.0})
         prefix = "resumed_"
     else:
-        trainer = MPAIL2Trainer(apply_overrides(preset(args.preset), [f"train.max_wall_s={args.budget_min * 60}",
-                                                                     f"train.run_dir={args.run_dir}", *overrides]))
+        cfg = apply_overrides(preset(args.preset), {"train.max_wall_s": args.budget_min * 60.0,
+                                                    "train.run_dir": str(args.run_dir)})
+        trainer = MPAIL2Trainer(apply_overrides(cfg, overrides))  # the command line's overrides come last
         prefix = ""
     summary = trainer.train()
     result = summarize(trainer.run_dir, args.name, {f"{prefix}wall_time_s": time.perf_counter() - start,

@@ -184,5 +184,5 @@ def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(tmp
     cpu = torch.device("cpu")
     same = smoke.agreement(cpu, "state", PlannerConfig(num_candidates=32, num_elites=4, iterations=2), batch=8)
     assert same["first_action_distance"] == 0.0 and same["losses_cpu"] == same["losses_device"]
-    trained = smoke.train_two_episodes(cpu)
-    assert trained["episodes"] == 2 and trained["updates"] > 0
+    trained = smoke.train_two_episodes(cpu, utd=0.1)
+    assert trained["episodes"] == 2 and trained["updates"] == 10  # 0.1 x the learning episode's 100 steps

@@ -278,7 +278,9 @@ def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
     run = _trained(demo_dir, tmp_path / "run")
     with pytest.raises(ConfigError, match=r"\['train.batch_size'\] cannot change"):
         MPAIL2Trainer.resume(run, ["train.batch_size=4"])
-    trainer = MPAIL2Trainer.resume(run, ["train.total_episodes=3"])
+    with pytest.raises(ConfigError, match=r"\['model.horizon'\] cannot change"):
+        MPAIL2Trainer.resume(run, {"model.horizon": 4})
+    trainer = MPAIL2Trainer.resume(run, {"train.total_episodes": 3})  # typed, from Python
     summary = trainer.train()
     assert summary["episodes"] == 3 and len(trainer.replay) == 150 and _episodes_logged(run) == [1, 2, 3]
     assert '"total_episodes": 3' in (run / "config.json").read_text()

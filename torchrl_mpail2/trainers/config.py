@@ -252,14 +252,18 @@ def _field_path(path: str) -> str:
     return f"{section.replace('-', '_')}.{name.replace('-', '_')}"
 
 
-def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str]) -> ExperimentConfig:
-    """:func:`apply_overrides` for a resumed run: only the fields of :data:`RESUME_FIELDS` may change.
+def apply_resume_overrides(cfg: ExperimentConfig, overrides: list[str] | Mapping[str, Any]) -> ExperimentConfig:
+    """:func:`apply_overrides` for a resumed run: only the fields of :data:`RESUME_FIELDS` may change (strings or,
+    from Python, a mapping of typed values, as there).
 
     Examples:
         >>> apply_resume_overrides(ExperimentConfig(), ["train.total_episodes=500"]).train.total_episodes
         500
+        >>> apply_resume_overrides(ExperimentConfig(), {"train.max_wall_s": 60.0}).train.max_wall_s
+        60.0
     """
-    refused = [path for path, _ in _pairs(overrides) if _field_path(path) not in RESUME_FIELDS]
+    paths = list(overrides) if isinstance(overrides, Mapping) else [path for path, _ in _pairs(overrides)]
+    refused = [path for path in paths if _field_path(path) not in RESUME_FIELDS]
     if refused:
         raise ConfigError(f"a resumed run keeps its saved config; {refused} cannot change (resumable: {list(RESUME_FIELDS)})")
     return apply_overrides(cfg, overrides)

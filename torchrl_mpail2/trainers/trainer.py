@@ -9,8 +9,9 @@ import math
 import shutil
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import torch
 from tensordict import TensorDict
@@ -207,13 +208,14 @@ class MPAIL2Trainer:
         self.agent.transfer_from(path, transfer)
 
     @classmethod
-    def resume(cls, run_dir: str | Path, overrides: list[str] | None = None, **kwargs) -> "MPAIL2Trainer":
+    def resume(cls, run_dir: str | Path, overrides: list[str] | Mapping[str, Any] | None = None,
+               **kwargs) -> "MPAIL2Trainer":
         """Rebuilds a run from its ``config.json`` and continues from its newest complete checkpoint.
 
         That is ``checkpoints/last`` unless a crash left it missing or damaged (see
         :func:`~torchrl_mpail2.data.checkpoint.find_resumable`); a run killed before its first checkpoint
         starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.trainers.config.RESUME_FIELDS`,
-        e.g. ``["train.total_episodes=400"]`` to extend a finished run.
+        e.g. ``["train.total_episodes=400"]`` or ``{"train.total_episodes": 400}`` to extend a finished run.
         """
         run_dir = Path(run_dir)
         cfg = apply_resume_overrides(read_run_config(run_dir), overrides or [])
