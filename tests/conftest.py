@@ -20,6 +20,13 @@ def pytest_configure(config):
 
 
 @pytest.fixture(autouse=True)
+def _own_working_directory(tmp_path, monkeypatch):
+    """Each test runs in its own folder: what a run writes relative to the working directory (the scripted-demo cache
+    ``demos/``, default run folders) lands there, never in the checkout, where parallel workers would share it."""
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture(autouse=True)
 def _seed():
     torch.manual_seed(0)
 
