@@ -1,5 +1,3 @@
-import os
-
 import pytest
 import torch
 from tensordict import TensorDict
@@ -11,18 +9,10 @@ TINY = dict(latent_dim=16, hidden_dims=(32, 32), coder_dim=32, vector_coder_hidd
 BATCH_SHAPES = [(), (4,), (2, 3)]
 
 
-def pytest_configure(config):
-    """Under pytest-xdist (``-n auto`` in pyproject.toml) each worker runs one torch thread, and so do the Python
-    processes the tests start, so that the workers together use the cores once."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        os.environ["OMP_NUM_THREADS"] = "1"
-        torch.set_num_threads(1)
-
-
 @pytest.fixture(autouse=True)
 def _own_working_directory(tmp_path, monkeypatch):
     """Each test runs in its own folder: what a run writes relative to the working directory (the scripted-demo cache
-    ``demos/``, default run folders) lands there, never in the checkout, where parallel workers would share it."""
+    ``demos/``, default run folders) lands there, never in the checkout, and no two tests share it."""
     monkeypatch.chdir(tmp_path)
 
 
