@@ -128,6 +128,27 @@ def test_slow_lift_expert_spends_longer_between_table_and_lift_height(state_envs
         LiftExpert(env, max_lift_speed=0.2)
 
 
+def _first_success_step(env, expert, seed):
+    env.set_seed(seed)
+    with torch.no_grad():
+        success = env.rollout(env.base_env.horizon, expert, break_when_any_done=False)["next", "success"].reshape(-1)
+    return int(success.float().argmax()) if success.any() else None
+
+
+def test_footprint_grasp_width_lifts_a_turned_cube_at_once():
+    """Seed 6 turns the cube by about 36 degrees: the fingers stop on it 1.4 times wider than its side. With the
+    binary gripper the ``side`` rule then waits for a narrower grip that never comes; ``footprint`` lifts."""
+    env = make_robosuite_env("Lift", obs="state", seed=0, gripper="binary")
+    try:
+        assert _first_success_step(env, LiftExpert(env), seed=6) is None
+        first = _first_success_step(env, LiftExpert(env, grasp_width="footprint"), seed=6)
+        assert first is not None and first < 40, first
+        with pytest.raises(ValueError, match="grasp_width"):
+            LiftExpert(env, grasp_width="diagonal")
+    finally:
+        env.close()
+
+
 def test_expert_rejects_wrong_task(state_envs):
     with pytest.raises(ValueError, match="Lift"):
         PushExpert(state_envs("Lift"))
