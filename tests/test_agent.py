@@ -133,8 +133,7 @@ def test_a_damaged_or_configless_checkpoint_is_refused_by_name(trained_run, tmp_
         MPAIL2Agent.from_checkpoint(configless)
 
 
-def test_the_trainer_trains_the_agent_it_is_given(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_the_trainer_trains_the_agent_it_is_given(tmp_path):
     cfg = _cfg("train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=0")
     env = make_env("point_mass")
     agent = MPAIL2Agent(env.observation_spec, env.action_spec, cfg.model, cfg.loss, cfg.planner)
@@ -168,7 +167,7 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
     assert row["success_rate"] == logged[-1]["success_rate"]
 
 
-def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(tmp_path, monkeypatch):
+def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch):
     """``benchmarks/device_smoke.py`` is the GPU check; its CPU path keeps it from rotting between GPU sessions."""
     from torchrl_mpail2.config import ConfigError
 

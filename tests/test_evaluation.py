@@ -19,8 +19,7 @@ def _first_observations(trainer):
     return torch.stack(firsts)
 
 
-def test_evaluation_plays_the_same_episodes_whatever_the_global_rng(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_evaluation_plays_the_same_episodes_whatever_the_global_rng(tmp_path):
     trainer = _trainer(tmp_path)
     torch.manual_seed(1)
     first = trainer.evaluate()
@@ -34,8 +33,7 @@ def test_evaluation_plays_the_same_episodes_whatever_the_global_rng(tmp_path, mo
     assert trainer.agent.planner.generator is None
 
 
-def test_evaluation_episodes_do_not_depend_on_the_training_seed(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_evaluation_episodes_do_not_depend_on_the_training_seed(tmp_path):
     a = _trainer(tmp_path / "a", "train.seed=0")
     b = _trainer(tmp_path / "b", "train.seed=7")
     a.evaluate(1), b.evaluate(1)
@@ -44,8 +42,7 @@ def test_evaluation_episodes_do_not_depend_on_the_training_seed(tmp_path, monkey
     assert not torch.equal(starts_a[0], starts_a[1])  # and the episodes differ from each other
 
 
-def test_best_checkpoint_is_chosen_by_any_step_success(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_best_checkpoint_is_chosen_by_any_step_success(tmp_path):
     trainer = _trainer(tmp_path)
     results = iter([{"success_rate_any_step": 0.5, "success_rate": 0.5},
                     {"success_rate_any_step": 0.7, "success_rate": 0.1},

@@ -307,8 +307,7 @@ def test_relative_paths_are_saved_resolved(demo_dir, tmp_path, monkeypatch):
 
     from torchrl_mpail2.trainers import MPAIL2Trainer
 
-    shutil.copytree(demo_dir, tmp_path / "demos" / "pm")
-    monkeypatch.chdir(tmp_path)
+    shutil.copytree(demo_dir, tmp_path / "demos" / "pm")  # tmp_path is the working directory (conftest.py)
     MPAIL2Trainer(_cfg("demos/pm", "train.run_dir=runs/a")).train()
     saved = json.loads((tmp_path / "runs" / "a" / "config.json").read_text())["train"]
     assert saved["demos"] == str(tmp_path / "demos" / "pm") and saved["run_dir"] == str(tmp_path / "runs" / "a")

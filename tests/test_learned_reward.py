@@ -82,8 +82,7 @@ def test_the_reward_networks_are_frozen_for_downstream_losses():
     assert not transform(traj)["next", "learned_reward"].requires_grad
 
 
-def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path):
     cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.num_demos=3",
                                                   "train.total_episodes=3", "train.warmup_episodes=1", "train.utd=0.05",
                                                   "train.eval_every=0", "planner.num_candidates=32",
@@ -99,12 +98,11 @@ def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path, monkeypat
 
 
 @pytest.mark.slow
-def test_torchrl_sac_learns_the_point_mass_from_the_learned_reward_alone(tmp_path, monkeypatch):
+def test_torchrl_sac_learns_the_point_mass_from_the_learned_reward_alone(tmp_path):
     """MPAIL2 on the point mass, then TorchRL's SACLoss on its learned reward only (no task reward)."""
     import importlib.util
     from pathlib import Path
 
-    monkeypatch.chdir(tmp_path)
     root = Path(__file__).resolve().parents[1]
     spec = importlib.util.spec_from_file_location("learned_reward_sac", root / "benchmarks" / "learned_reward_sac.py")
     bench = importlib.util.module_from_spec(spec)

@@ -134,11 +134,10 @@ def test_the_command_line_imports_into_a_demo_folder(recording, tmp_path, capsys
     assert len(header["episodes"]) == 2
 
 
-def test_a_saved_config_keeps_the_source_prefix_with_an_absolute_path(tmp_path, monkeypatch):
+def test_a_saved_config_keeps_the_source_prefix_with_an_absolute_path(tmp_path):
     from torchrl_mpail2.trainers import ExperimentConfig
     from torchrl_mpail2.trainers.config import resolve_for_run
 
-    monkeypatch.chdir(tmp_path)
     cfg = ExperimentConfig()
     cfg.train.demos = "robosuite_hdf5:teleop/demo.hdf5"
     assert resolve_for_run(cfg, "run").train.demos == f"robosuite_hdf5:{tmp_path / 'teleop' / 'demo.hdf5'}"

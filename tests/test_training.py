@@ -24,9 +24,8 @@ def _cfg(*overrides):
     return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", *overrides])
 
 
-def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path, monkeypatch):
+def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path):
     """About two minutes on 2 CPU cores: >= 80% deterministic evaluation success after 35 episodes."""
-    monkeypatch.chdir(tmp_path)
     trainer = MPAIL2Trainer(_cfg("train.total_episodes=35", "train.eval_every=35", "train.eval_episodes=10"),
                             run_dir=tmp_path / "run")
     summary = trainer.train()
@@ -54,8 +53,7 @@ def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path, monkeypatch):
     assert summary["last_eval"]["success_rate"] <= summary["last_eval"]["success_rate_any_step"]
 
 
-def test_policy_only_ablation_runs(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_policy_only_ablation_runs(tmp_path):
     trainer = MPAIL2Trainer(_cfg("train.ablation=P", "train.total_episodes=3", "train.warmup_episodes=1",
                                  "train.eval_every=3", "train.eval_episodes=1", "train.utd=0.1"), run_dir=tmp_path / "r")
     summary = trainer.train()
@@ -65,8 +63,7 @@ def test_policy_only_ablation_runs(tmp_path, monkeypatch):
     assert all(r["actions_per_s"] > 0 for r in records if not r["random_actions"])
 
 
-def test_latest_episode_ablation_trains_on_the_last_episode(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_latest_episode_ablation_trains_on_the_last_episode(tmp_path):
     trainer = MPAIL2Trainer(_cfg("train.ablation=O", "train.total_episodes=3", "train.warmup_episodes=1",
                                  "train.eval_every=0", "train.utd=0.1"), run_dir=tmp_path / "r")
     trainer.train()
@@ -74,8 +71,7 @@ def test_latest_episode_ablation_trains_on_the_last_episode(tmp_path, monkeypatc
 
 
 @pytest.mark.parametrize("ablation", ["PM", "PMO"])
-def test_model_free_ablations_run(tmp_path, monkeypatch, ablation):
-    monkeypatch.chdir(tmp_path)
+def test_model_free_ablations_run(tmp_path, ablation):
     trainer = MPAIL2Trainer(_cfg(f"train.ablation={ablation}", "train.total_episodes=3", "train.warmup_episodes=1",
                                  "train.eval_every=3", "train.eval_episodes=1", "train.utd=0.1"), run_dir=tmp_path / "r")
     before = {k: v.clone() for k, v in trainer.agent.modules.encoder.state_dict().items()}
@@ -213,8 +209,7 @@ class _FlakyPointMass:
         return with_bookkeeping(Flaky(seed=seed))
 
 
-def test_simulator_exception_ends_the_episode_with_a_warning_and_training_goes_on(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_simulator_exception_ends_the_episode_with_a_warning_and_training_goes_on(tmp_path):
     env_fn = _FlakyPointMass()
     trainer = MPAIL2Trainer(_cfg("train.total_episodes=4", "train.warmup_episodes=3", "train.utd=0.05", "train.eval_every=0"),
                             env_fn=env_fn, run_dir=tmp_path / "r")
@@ -224,8 +219,7 @@ def test_simulator_exception_ends_the_episode_with_a_warning_and_training_goes_o
     assert len(trainer.replay) == 4 * 50  # the aborted episode never reached the buffer
 
 
-def test_init_from_transfers_everything_or_only_the_world_model(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_init_from_transfers_everything_or_only_the_world_model(tmp_path):
     cfg = _cfg("train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=0")
     source = MPAIL2Trainer(cfg, run_dir=tmp_path / "a")
     source.train()

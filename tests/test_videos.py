@@ -24,8 +24,7 @@ def test_point_mass_frames_show_the_point_where_it_is():
     assert abs(blue[1] - (x + 1.5) / 3 * 128) < 2 and abs(blue[0] - (1.5 - y) / 3 * 128) < 2
 
 
-def test_train_video_writes_the_evaluation_episodes_and_evaluates_the_same(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_train_video_writes_the_evaluation_episodes_and_evaluates_the_same(tmp_path):
     filmed = MPAIL2Trainer(_cfg("train.video=true", "train.video_episodes=2"), run_dir=tmp_path / "filmed")
     filmed.train()
     videos = sorted((tmp_path / "filmed" / "videos").glob("*.mp4"))
@@ -40,8 +39,7 @@ def test_train_video_writes_the_evaluation_episodes_and_evaluates_the_same(tmp_p
     assert {k: v for k, v in with_video.items() if k != "videos"} == without
 
 
-def test_train_video_on_an_env_without_render_is_refused_by_name(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+def test_train_video_on_an_env_without_render_is_refused_by_name(tmp_path):
     env = make_env("point_mass")
 
     class NoRender:
