@@ -78,8 +78,13 @@ class _ScriptedExpert(TensorDictModuleBase):
         return tensordict
 
 
-def grasp_width(half_size: np.ndarray, quat_xyzw: np.ndarray) -> float:
-    """Width of a cube's footprint across the closing fingers: where the fingers stop on it.
+#: Where :class:`LiftExpert` takes the fingers to stop on the cube (see :func:`grasp_width`).
+GRASP_WIDTHS = ("side", "footprint")
+
+
+def grasp_width(half_size: np.ndarray, quat_xyzw: np.ndarray, rule: str = "footprint") -> float:
+    """Where the closing fingers stop on a cube: its larger side (``rule="side"``, whatever its yaw) or, by default,
+    the width of its footprint across the fingers (``"footprint"``).
 
     The arm keeps the hand's orientation fixed, fingers closing along a world axis (x or y, within a few degrees),
     so a cube turned by yaw ``psi`` about the vertical is gripped across
@@ -90,9 +95,11 @@ def grasp_width(half_size: np.ndarray, quat_xyzw: np.ndarray) -> float:
         >>> round(grasp_width(np.array([0.02, 0.02, 0.02]), np.array([0.0, 0.0, 0.0, 1.0])), 3)
         0.04
         >>> yaw_45 = np.array([0.0, 0.0, np.sin(np.pi / 8), np.cos(np.pi / 8)])
-        >>> round(grasp_width(np.array([0.02, 0.02, 0.02]), yaw_45), 4)
-        0.0566
+        >>> round(grasp_width(np.array([0.02, 0.02, 0.02]), yaw_45), 4), grasp_width(np.full(3, 0.02), yaw_45, "side")
+        (0.0566, 0.04)
     """
+    if rule == "side":
+        return 2.0 * float(max(half_size[0], half_size[1]))
     x, y, z, w = (float(v) for v in quat_xyzw)
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     c, s = abs(np.cos(yaw)), abs(np.sin(yaw))
@@ -138,14 +145,12 @@ class LiftExpert(_ScriptedExpert):
     aligned_tolerance = 0.01
     shut_opening = 0.01  # finger opening below which the grasp missed
 
-    GRASP_WIDTHS = ("side", "footprint")
-
     def __init__(self, env, *, noise_std: float = 0.0, seed: int | None = None, max_lift_speed: float | None = None,
                  human_like: bool = False, grasp_width: str = "side"):
         super().__init__(env, noise_std=noise_std, seed=seed, human_like=human_like)
-        if grasp_width not in self.GRASP_WIDTHS:
-            raise ValueError(f"grasp_width must be one of {self.GRASP_WIDTHS}, got {grasp_width!r}.")
-        self.grasp_width = grasp_width
+        if grasp_width not in GRASP_WIDTHS:
+            raise ValueError(f"grasp_width must be one of {GRASP_WIDTHS}, got {grasp_width!r}.")
+        self.grasp_rule = grasp_width
         delta = self.env.max_eef_delta
         if max_lift_speed is not None and not 0.0 < max_lift_speed <= delta:
             raise ValueError(f"max_lift_speed must lie in (0, {delta}] metres per step (the env's max_eef_delta), "
@@ -156,8 +161,7 @@ class LiftExpert(_ScriptedExpert):
         eef, cube = state["eef_pos"], state["cube_pos"]
         table_height = float(state["table_height"][0])
         opening = float(state["gripper_qpos"][0] - state["gripper_qpos"][1])
-        cube_width = (grasp_width(state["cube_half_size"], state["cube_quat"]) if self.grasp_width == "footprint"
-                      else 2.0 * float(state["cube_half_size"][:2].max()))
+        cube_width = grasp_width(state["cube_half_size"], state["cube_quat"], self.grasp_rule)
         horizontal_error = np.linalg.norm(cube[:2] - eef[:2])
         vertical_error = abs(cube[2] - eef[2])
 
