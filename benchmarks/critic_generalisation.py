@@ -1,15 +1,17 @@
 """Does the WGAN critic learn what makes a demonstration expert-like, or memorise the demonstrations?
 
     python benchmarks/critic_generalisation.py [--train 10] [--heldout 20] [--agent 20] [--steps 2000]
+        [--gp-coefs 0.1 10] [--out critic_generalisation_gp.json]
 
 For each demonstration style (the noiseless scripted Lift expert as recorded today; the human-like one:
 per-episode speed, approach path, drift and pauses, recordings ending 10 steps after success), a critic is
-trained as in MPAIL2 (the package's reward network and loss, beta = 0.1, on latents of the package's encoder at
+trained as in MPAIL2 (the package's reward network and loss, beta = 0.1 or each of ``--gp-coefs``, on latents of the package's encoder at
 initialisation, frozen, normalised by the training demos) on ``--train`` demonstrations against a noisy copy of
 the scripted expert (Gaussian action noise, std 0.3; the same agent set for every style). It is then scored on
-``--heldout`` unseen expert episodes of the same style. Reported per style: the mean critic gap (expert minus
-agent) on the training demos and on the held-out episodes, and the held-out AUC (the chance that a held-out
-expert transition outscores an agent transition; 0.5 is chance). Writes ``docs/results/diagnostics/critic_generalisation.json``.
+``--heldout`` unseen expert episodes of the same style. Reported per style and beta: the mean critic gap (expert
+minus agent) on the training demos and on the held-out episodes, the held-out AUC (the chance that a held-out
+expert transition outscores an agent transition; 0.5 is chance), and the critic's input-gradient norm on the
+agent and expert pairs (the gradient penalty pulls it towards 1). Writes ``docs/results/diagnostics/<--out>``.
 """
 from __future__ import annotations
 
@@ -56,7 +58,14 @@ def auc(expert: torch.Tensor, agent: torch.Tensor) -> float:
     return float((expert[:, None] > agent[None, :]).float().mean())
 
 
-def run_style(style: str, agent_demos, args) -> dict:
+def gradient_norm(critic, z: torch.Tensor, z_next: torch.Tensor) -> float:
+    """Mean norm of the critic's gradient with respect to its input pair ``(z, z')``."""
+    z, z_next = z.detach().requires_grad_(True), z_next.detach().requires_grad_(True)
+    grads = torch.autograd.grad(critic(z, z_next).sum(), (z, z_next))
+    return float(torch.cat(grads, dim=-1).norm(dim=-1).mean())
+
+
+def run_style(style: str, agent_demos, args, gp_coef: float = 0.1) -> dict:
     torch.manual_seed(0)
     train = record(style, args.train, TRAIN_SEED)
     heldout = record(style, args.heldout, HELDOUT_SEED)
@@ -66,7 +75,7 @@ def run_style(style: str, agent_demos, args) -> dict:
     generator = torch.Generator().manual_seed(0)
     train_buf, agent_buf = DemoBuffer(train, generator=generator), DemoBuffer(agent_demos, generator=generator)
     modules.normalize_from_demos(train)
-    loss = AdversarialRewardLoss(modules.encoder, modules.reward, gp_coef=0.1)
+    loss = AdversarialRewardLoss(modules.encoder, modules.reward, gp_coef=gp_coef)
     opt = torch.optim.Adam(modules.reward.parameters(), lr=3e-4)
     encode = modules.encoder.encode
     start = time.perf_counter()
@@ -80,17 +89,26 @@ def run_style(style: str, agent_demos, args) -> dict:
         out["loss_reward"].backward()
         opt.step()
 
-    @torch.no_grad()
-    def scores(demos):
+    critic = modules.reward.module.critic
+
+    def latents(demos):
         pairs = all_pairs(demos, modules.encoder.in_keys)
-        return modules.reward.module.critic(encode(pairs), encode(pairs, ("next",))).flatten()
+        with torch.no_grad():
+            return encode(pairs), encode(pairs, ("next",))
+
+    def scores(demos):
+        with torch.no_grad():
+            return critic(*latents(demos)).flatten()
 
     s_train, s_held, s_agent = scores(train), scores(heldout), scores(agent_demos)
-    return {"style": style, "train_demos": args.train, "heldout_episodes": args.heldout,
+    return {"style": style, "gp_coef": gp_coef, "train_demos": args.train, "heldout_episodes": args.heldout,
             "train_success": train.success_rate, "heldout_success": heldout.success_rate,
             "train_lengths": train.episode_lengths, "heldout_lengths": heldout.episode_lengths,
             "train_gap": float(s_train.mean() - s_agent.mean()), "heldout_gap": float(s_held.mean() - s_agent.mean()),
             "train_auc": auc(s_train, s_agent), "heldout_auc": auc(s_held, s_agent),
+            "grad_norm_agent": gradient_norm(critic, *latents(agent_demos)),
+            "grad_norm_heldout": gradient_norm(critic, *latents(heldout)),
+            "heldout_gap_over_agent_std": float((s_held.mean() - s_agent.mean()) / s_agent.std()),
             "critic_train_s": time.perf_counter() - start}
 
 
@@ -103,17 +121,22 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--styles", nargs="+", default=list(STYLES), choices=list(STYLES))
+    p.add_argument("--gp-coefs", nargs="+", type=float, default=[0.1], help="gradient-penalty coefficients beta")
+    p.add_argument("--out", default="critic_generalisation.json", help="file name under docs/results/diagnostics/")
     args = p.parse_args()
+    if any(b < 0 for b in args.gp_coefs):
+        p.error(f"--gp-coefs must be non-negative, got {args.gp_coefs}")
     torch.set_num_threads(args.threads)
     agent_demos = record(None, args.agent, AGENT_SEED)
-    rows = [run_style(style, agent_demos, args) for style in args.styles]
+    rows = [run_style(style, agent_demos, args, beta) for style in args.styles for beta in args.gp_coefs]
     result = {"env": ENV, "agent": f"scripted expert with Gaussian action noise std {AGENT_NOISE_STD}",
               "agent_success": agent_demos.success_rate, "critic_steps": args.steps, "batch": args.batch,
-              "critic": "package reward network and loss (beta 0.1) on frozen initial-encoder latents", "styles": rows}
+              "critic": "package reward network and loss on frozen initial-encoder latents", "gp_coefs": args.gp_coefs,
+              "styles": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "critic_generalisation.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / args.out).write_text(json.dumps(result, indent=2))
     for r in rows:
-        print(f"{r['style']:11s} train gap {r['train_gap']:8.1f}  held-out gap {r['heldout_gap']:8.1f}  "
+        print(f"{r['style']:11s} beta {r['gp_coef']:6g} |grad| {r['grad_norm_agent']:7.2f}  train gap {r['train_gap']:8.1f}  held-out gap {r['heldout_gap']:8.1f}  "
               f"train AUC {r['train_auc']:.3f}  held-out AUC {r['heldout_auc']:.3f}  "
               f"(demo success {r['train_success']:.2f} / {r['heldout_success']:.2f})")
 
