@@ -5,6 +5,7 @@ from tensordict import TensorDict
 from conftest import replay_batch, tiny_modules
 from torchrl_mpail2 import (AdversarialRewardLoss, JEPDynamicsLoss, LambdaReturnValueLoss, LossConfig, MPAIL2Loss,
                             MPAIL2Updater, MultiStepActorLoss)
+from torchrl_mpail2.config import ConfigError
 
 
 def _grads(module):
@@ -169,6 +170,20 @@ def test_composite_returns_every_term_and_state_dict_round_trips():
     for a, b in zip(loss.value_loss.target_qvalue_network_params.values(True, True),
                     other.value_loss.target_qvalue_network_params.values(True, True)):
         assert torch.equal(a, b)
+
+
+def test_alpha_lr_zero_keeps_alpha_fixed_while_the_default_raises_it():
+    moved = {}
+    for alpha_lr in (3e-4, 0.0):
+        torch.manual_seed(0)
+        loss = MPAIL2Loss(tiny_modules(), LossConfig(alpha_lr=alpha_lr, target_entropy_per_step=100.0))
+        before = loss.actor_loss.log_alpha.item()
+        MPAIL2Updater(loss, retain_memory=False).update(replay_batch())
+        moved[alpha_lr] = loss.actor_loss.log_alpha.item() - before
+    # entropy far below a target of 100 nats: Adam's first step raises log alpha by about its learning rate
+    assert moved[3e-4] == pytest.approx(3e-4, rel=1e-3) and moved[0.0] == 0.0
+    with pytest.raises(ConfigError, match="alpha_lr"):
+        LossConfig(alpha_lr=-1e-4)
 
 
 def test_param_groups_follow_table_4():

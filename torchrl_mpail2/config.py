@@ -232,7 +232,9 @@ class LossConfig:
     encoder_lr: float = 3e-5
     """Learning rate of the encoder."""
     alpha_lr: float = 3e-4
-    """Learning rate of log alpha."""
+    """Learning rate of log alpha (Table 4: 3e-4). Adam moves log alpha by about ``alpha_lr`` per update whatever
+    the entropy gap, so alpha grows e-fold every ``1 / alpha_lr`` updates while the entropy is below its target.
+    0 keeps alpha fixed at ``init_alpha`` (a constant entropy coefficient, as TD-MPC2 uses)."""
     value_grad_clip: float = 5.0
     """Gradient-norm clip of the value update."""
     policy_grad_clip: float = 1.0
@@ -242,7 +244,7 @@ class LossConfig:
         "gamma": UNIT_INTERVAL, "lmbda": UNIT_INTERVAL, "rho": OPEN_UNIT_INTERVAL, "gp_coef": NON_NEGATIVE,
         "reward_scale_momentum": Range(0.0, 1.0, high_open=True), "transitions_per_window": AT_LEAST_ONE,
         "tau": UNIT_INTERVAL, "init_alpha": POSITIVE, "target_entropy_per_step": FINITE, "lr": POSITIVE,
-        "encoder_lr": POSITIVE, "alpha_lr": POSITIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
+        "encoder_lr": POSITIVE, "alpha_lr": NON_NEGATIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
     }
 
     def __post_init__(self) -> None:
