@@ -161,9 +161,10 @@ def test_composite_returns_every_term_and_state_dict_round_trips():
     out = loss(replay_batch())
     for key in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor", "loss_alpha"):
         assert out[key].shape == () and torch.isfinite(out[key])
-    for key in ("grad_penalty", "reward_gap", "q_mean", "alpha", "entropy"):
+    for key in ("grad_penalty", "reward_gap", "q_mean", "alpha", "entropy", "target_entropy"):
         assert not out[key].requires_grad
     assert loss.log_alpha.exp().item() == pytest.approx(0.1)
+    assert out["target_entropy"].item() == -2.0  # -|A| per step (Table 4), logged beside the entropy
     other = MPAIL2Loss(tiny_modules(), LossConfig())
     other.load_state_dict(loss.state_dict())
     assert other.log_alpha.item() == pytest.approx(loss.log_alpha.item())

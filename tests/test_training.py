@@ -39,7 +39,7 @@ def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path):
             successes.append(float(traj["next", "success"][-1]))
     assert sum(successes) / len(successes) < 0.2
     # the run folder holds what a user looks at
-    for name in ("metrics.jsonl", "eval.jsonl", "curves.png", "summary.json", "config.json"):
+    for name in ("metrics.jsonl", "eval.jsonl", "curves.png", "learner.png", "summary.json", "config.json"):
         assert (tmp_path / "run" / name).exists(), name
     records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert [r["episode"] for r in records] == list(range(1, 36))

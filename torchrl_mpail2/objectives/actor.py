@@ -35,7 +35,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         target_entropy_per_step (float, optional): default ``-A``.
 
     Returns: ``loss_actor``, ``loss_alpha`` and detached ``alpha``, ``entropy`` (per step, ``-log pi / H``),
-    ``imagined_return``.
+    ``target_entropy`` (per step) and ``imagined_return``.
     """
 
     policy_network: MultiStepPolicy
@@ -75,4 +75,5 @@ class MultiStepActorLoss(MPAIL2LossBase):
         loss_actor = self.reduce(alpha * log_prob_step - G)
         loss_alpha = self.reduce(-self.log_alpha * (log_prob_step.detach() + self.target_entropy))
         return TensorDict({"loss_actor": loss_actor, "loss_alpha": loss_alpha, "alpha": alpha,
-                           "entropy": -log_prob_step.detach().mean(), "imagined_return": G.detach().mean()}, [])
+                           "entropy": -log_prob_step.detach().mean(), "target_entropy": torch.tensor(self.target_entropy),
+                           "imagined_return": G.detach().mean()}, [])

@@ -28,6 +28,7 @@ from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, 
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, read_run_config, resolve_for_run
 from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
 from torchrl_mpail2.trainers.logs import RunLogger
+from torchrl_mpail2.trainers.plots import plot_run
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
@@ -346,8 +347,6 @@ class MPAIL2Trainer:
         if self._last_written != self.counters["episodes"]:
             self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
-        from torchrl_mpail2.trainers.plots import plot_run
-
         plot_run(self.run_dir, t.success_window)
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
@@ -376,6 +375,7 @@ class MPAIL2Trainer:
             self.save("best")
         self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
+        plot_run(self.run_dir, self.cfg.train.success_window)  # the figures follow a long run, not just its end
         return evaluation
 
     def _episode_records(self, episodes: list[TensorDict]) -> list[dict]:
