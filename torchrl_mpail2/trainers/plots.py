@@ -137,7 +137,8 @@ def plot_learner(run_dir: str | Path) -> Path:
         ax.set_xlabel("episode")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
-        if log_scale and any(line.get_ydata().size and (line.get_ydata() > 0).all() for line in ax.get_lines()):
+        values = [np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()]
+        if log_scale and values and all(v.size and (v > 0).all() for v in values):
             ax.set_yscale("log")
         if len(ax.get_lines()) > 1:
             ax.legend(fontsize=8)
