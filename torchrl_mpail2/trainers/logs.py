@@ -9,7 +9,8 @@ from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, read_jsonl
 #: Metric name -> log group, so that dashboards show the paper's groups.
 GROUPS = {
     "loss_": "losses", "reward_": "reward", "grad_penalty": "reward", "expert_accuracy": "reward",
-    "q_": "value", "learned_reward_mean": "value", "alpha": "policy", "entropy": "policy", "target_entropy": "policy", "imagined_return": "policy",
+    "q_": "value", "learned_reward_mean": "value", "alpha": "policy", "entropy": "policy", "target_entropy": "policy",
+    "imagined_return": "policy",
     "policy_influence": "planner", "elite_return": "planner", "plan_std": "planner", "elite_ess": "planner",
     "success": "environment", "task_return": "environment", "normalized_return": "environment", "length": "environment",
     "update_ms": "speed", "env_steps_per_s": "speed", "actions_per_s": "speed", "act_s": "speed", "collect_s": "speed",
