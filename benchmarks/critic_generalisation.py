@@ -5,9 +5,9 @@
 
 For each demonstration style (the noiseless scripted Lift expert as recorded today; the human-like one:
 per-episode speed, approach path, drift and pauses, recordings ending 10 steps after success), a critic is
-trained as in MPAIL2 (the package's reward network and loss, beta = 0.1 or each of ``--gp-coefs``, on latents of the package's encoder at
-initialisation, frozen, normalised by the training demos) on ``--train`` demonstrations against a noisy copy of
-the scripted expert (Gaussian action noise, std 0.3; the same agent set for every style). It is then scored on
+trained as in MPAIL2 (the package's reward network and loss, beta = 0.1 or each of ``--gp-coefs``, on latents of
+the package's encoder at initialisation, frozen, normalised by the training demos) on ``--train`` demonstrations
+against a noisy copy of the scripted expert (Gaussian action noise, std 0.3; the same agent set for every style). It is then scored on
 ``--heldout`` unseen expert episodes of the same style. Reported per style and beta: the mean critic gap (expert
 minus agent) on the training demos and on the held-out episodes, the held-out AUC (the chance that a held-out
 expert transition outscores an agent transition; 0.5 is chance), and the critic's input-gradient norm on the
@@ -96,18 +96,15 @@ def run_style(style: str, agent_demos, args, gp_coef: float = 0.1) -> dict:
         with torch.no_grad():
             return encode(pairs), encode(pairs, ("next",))
 
-    def scores(demos):
-        with torch.no_grad():
-            return critic(*latents(demos)).flatten()
-
-    s_train, s_held, s_agent = scores(train), scores(heldout), scores(agent_demos)
+    z_train, z_held, z_agent = latents(train), latents(heldout), latents(agent_demos)
+    with torch.no_grad():
+        s_train, s_held, s_agent = (critic(*z).flatten() for z in (z_train, z_held, z_agent))
     return {"style": style, "gp_coef": gp_coef, "train_demos": args.train, "heldout_episodes": args.heldout,
             "train_success": train.success_rate, "heldout_success": heldout.success_rate,
             "train_lengths": train.episode_lengths, "heldout_lengths": heldout.episode_lengths,
             "train_gap": float(s_train.mean() - s_agent.mean()), "heldout_gap": float(s_held.mean() - s_agent.mean()),
             "train_auc": auc(s_train, s_agent), "heldout_auc": auc(s_held, s_agent),
-            "grad_norm_agent": gradient_norm(critic, *latents(agent_demos)),
-            "grad_norm_heldout": gradient_norm(critic, *latents(heldout)),
+            "grad_norm_agent": gradient_norm(critic, *z_agent), "grad_norm_heldout": gradient_norm(critic, *z_held),
             "heldout_gap_over_agent_std": float((s_held.mean() - s_agent.mean()) / s_agent.std()),
             "critic_train_s": time.perf_counter() - start}
 
@@ -136,7 +133,8 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / args.out).write_text(json.dumps(result, indent=2))
     for r in rows:
-        print(f"{r['style']:11s} beta {r['gp_coef']:6g} |grad| {r['grad_norm_agent']:7.2f}  train gap {r['train_gap']:8.1f}  held-out gap {r['heldout_gap']:8.1f}  "
+        print(f"{r['style']:11s} beta {r['gp_coef']:6g} |grad| {r['grad_norm_agent']:7.2f}  "
+              f"train gap {r['train_gap']:8.1f}  held-out gap {r['heldout_gap']:8.1f}  "
               f"train AUC {r['train_auc']:.3f}  held-out AUC {r['heldout_auc']:.3f}  "
               f"(demo success {r['train_success']:.2f} / {r['heldout_success']:.2f})")
 

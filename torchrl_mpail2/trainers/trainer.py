@@ -347,7 +347,8 @@ class MPAIL2Trainer:
         if self._last_written != self.counters["episodes"]:
             self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
-        plot_run(self.run_dir, t.success_window)
+        if not t.eval_every:  # otherwise the final evaluation above has just drawn them
+            plot_run(self.run_dir, t.success_window)
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
                    "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
@@ -375,7 +376,9 @@ class MPAIL2Trainer:
             self.save("best")
         self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
+        tick = time.perf_counter()
         plot_run(self.run_dir, self.cfg.train.success_window)  # the figures follow a long run, not just its end
+        self._time("log", time.perf_counter() - tick)
         return evaluation
 
     def _episode_records(self, episodes: list[TensorDict]) -> list[dict]:
