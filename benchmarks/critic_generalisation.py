@@ -8,10 +8,11 @@ per-episode speed, approach path, drift and pauses, recordings ending 10 steps a
 trained as in MPAIL2 (the package's reward network and loss, beta = 0.1 or each of ``--gp-coefs``, on latents of
 the package's encoder at initialisation, frozen, normalised by the training demos) on ``--train`` demonstrations
 against a noisy copy of the scripted expert (Gaussian action noise, std 0.3; the same agent set for every style).
-It is then scored on ``--heldout`` unseen expert episodes of the same style. Reported per style and beta: the mean critic gap (expert
-minus agent) on the training demos and on the held-out episodes, the held-out AUC (the chance that a held-out
-expert transition outscores an agent transition; 0.5 is chance), and the critic's input-gradient norm on the
-agent and expert pairs (the gradient penalty pulls it towards 1). Writes ``docs/results/diagnostics/<--out>``.
+It is then scored on ``--heldout`` unseen expert episodes of the same style. Reported per style and beta: the mean
+critic gap (expert minus agent) on the training demos and on the held-out episodes, the held-out AUC (the chance
+that a held-out expert transition outscores an agent transition; 0.5 is chance), the critic's input-gradient norm
+on the agent and held-out expert pairs (the gradient penalty pulls it towards 1), and the held-out gap in units of
+the agent scores' standard deviation. Writes ``docs/results/diagnostics/<--out>``.
 """
 from __future__ import annotations
 
