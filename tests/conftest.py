@@ -1,5 +1,3 @@
-import os
-
 import pytest
 import torch
 from tensordict import TensorDict
@@ -9,17 +7,6 @@ from torchrl_mpail2.modules import MPAIL2Modules
 
 TINY = dict(latent_dim=16, hidden_dims=(32, 32), coder_dim=32, vector_coder_hidden=32, cnn_channels=8, horizon=3)
 BATCH_SHAPES = [(), (4,), (2, 3)]
-
-
-def pytest_configure(config):
-    """Under pytest-xdist the cores are shared out between the workers (and the processes the tests start), so that
-    torch's intra-op threads do not oversubscribe them: on 2 cores, two workers at one thread each."""
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))
-    if workers:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        threads = max(1, cores // workers)
-        torch.set_num_threads(threads)
-        os.environ.setdefault("OMP_NUM_THREADS", str(threads))
 
 
 @pytest.fixture(autouse=True)
