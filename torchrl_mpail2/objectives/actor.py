@@ -75,5 +75,6 @@ class MultiStepActorLoss(MPAIL2LossBase):
         loss_actor = self.reduce(alpha * log_prob_step - G)
         loss_alpha = self.reduce(-self.log_alpha * (log_prob_step.detach() + self.target_entropy))
         return TensorDict({"loss_actor": loss_actor, "loss_alpha": loss_alpha, "alpha": alpha,
-                           "entropy": -log_prob_step.detach().mean(), "target_entropy": self.log_alpha.new_tensor(self.target_entropy),
+                           "entropy": -log_prob_step.detach().mean(),
+                           "target_entropy": self.log_alpha.new_tensor(self.target_entropy),
                            "imagined_return": G.detach().mean()}, [])

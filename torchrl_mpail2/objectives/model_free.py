@@ -53,7 +53,8 @@ class ModelFreeActorLoss(MPAIL2LossBase):
         return TensorDict({
             "loss_actor": self.reduce(alpha * log_prob - q),
             "loss_alpha": self.reduce(-self.log_alpha * (log_prob.detach() + self.target_entropy)),
-            "alpha": alpha, "entropy": -log_prob.detach().mean(), "target_entropy": self.log_alpha.new_tensor(self.target_entropy),
+            "alpha": alpha, "entropy": -log_prob.detach().mean(),
+            "target_entropy": self.log_alpha.new_tensor(self.target_entropy),
         }, [])
 
 

@@ -348,7 +348,7 @@ class MPAIL2Trainer:
             self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
         if not t.eval_every:  # otherwise the final evaluation above has just drawn them
-            plot_run(self.run_dir, t.success_window)
+            self._draw_figures()
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
                    "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
@@ -376,10 +376,14 @@ class MPAIL2Trainer:
             self.save("best")
         self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
-        tick = time.perf_counter()
-        plot_run(self.run_dir, self.cfg.train.success_window)  # the figures follow a long run, not just its end
-        self._time("log", time.perf_counter() - tick)
+        self._draw_figures()  # the figures follow a long run, not just its end
         return evaluation
+
+    def _draw_figures(self) -> None:
+        """Redraw the run folder's figures (``curves.png``, ``learner.png``); their time counts under ``log``."""
+        tick = time.perf_counter()
+        plot_run(self.run_dir, self.cfg.train.success_window)
+        self._time("log", time.perf_counter() - tick)
 
     def _episode_records(self, episodes: list[TensorDict]) -> list[dict]:
         """One log record per episode of a batch; the planner statistics (means over the batch) go with each,
