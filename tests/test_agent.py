@@ -22,8 +22,9 @@ TINY_PLANNER = PlannerConfig(num_candidates=16, num_elites=4, iterations=2)
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.eval_episodes=3",
-                                                  "planner.num_candidates=32", "planner.num_elites=4", *overrides])
+    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+                                                  "train.eval_episodes=3", "planner.num_candidates=32",
+                                                  "planner.num_elites=4", *overrides])
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,9 @@ from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
 
 def _trainer(tmp_path, *overrides):
-    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.eval_episodes=3",
-                                                 "planner.num_candidates=32", "planner.num_elites=4", *overrides])
+    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+                                                 "train.eval_episodes=3", "planner.num_candidates=32",
+                                                 "planner.num_elites=4", *overrides])
     return MPAIL2Trainer(cfg, run_dir=tmp_path / "run")
 
 

@@ -49,7 +49,9 @@ def test_gym_example_with_user_demonstrations(tmp_path):
     assert 2 <= summary["env_steps"] <= 2 * 1000  # Hopper episodes end on termination
 
 
-@pytest.mark.parametrize("script", ["robosuite_lift.py", "robosuite_push.py"])
+@pytest.mark.parametrize("script", ["robosuite_lift.py",
+                                    # the same entry point as Lift's with another preset: slow only
+                                    pytest.param("robosuite_push.py", marks=pytest.mark.slow)])
 def test_robosuite_examples(tmp_path, script):
     pytest.importorskip("robosuite")
     assert run_example(script, tmp_path, "train.num_demos=1")["env_steps"] == 2 * 100  # horizon 100, no termination

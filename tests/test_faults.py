@@ -153,9 +153,10 @@ def demo_dir(tmp_path_factory):
 
 def _cfg(demo_dir, *overrides):
     return apply_overrides(preset("point_mass"), [
-        "train.progress=false", "train.logger=none", f"train.demos={demo_dir}", "train.total_episodes=2",
-        "train.warmup_episodes=1", "train.utd=0.02", "train.batch_size=8", "train.eval_every=0",
-        "train.checkpoint_every=0", *overrides])
+        "train.progress=false", "train.logger=none", "train.figures=false", f"train.demos={demo_dir}",
+        "train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.02", "train.batch_size=8",
+        "train.eval_every=0",
+        "train.checkpoint_every=0", "planner.num_candidates=32", "planner.num_elites=4", *overrides])
 
 
 def _trained(demo_dir, run, *overrides):
@@ -486,8 +487,9 @@ def test_a_run_killed_at_random_moments_and_resumed_ends_like_an_uninterrupted_o
 
     run = tmp_path / "run"
     args = [sys.executable, "-m", "torchrl_mpail2.train", "--preset", "point_mass"]
-    overrides = ["train.progress=false", "train.logger=none", f"train.demos={demo_dir}", "train.warmup_episodes=1",
-                 "train.batch_size=8", *settings, f"train.run_dir={run}"]
+    overrides = ["train.progress=false", "train.logger=none", "train.figures=false", f"train.demos={demo_dir}",
+                 "train.warmup_episodes=1", "train.batch_size=8", "planner.num_candidates=32", "planner.num_elites=4",
+                 *settings, f"train.run_dir={run}"]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}
     rng, kills = random.Random(14), []
 

@@ -83,8 +83,9 @@ def test_the_reward_networks_are_frozen_for_downstream_losses():
 
 
 def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path):
-    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.num_demos=3",
-                                                  "train.total_episodes=3", "train.warmup_episodes=1", "train.utd=0.05",
+    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+                                                  "train.num_demos=3", "train.total_episodes=3",
+                                                  "train.warmup_episodes=1", "train.utd=0.05",
                                                   "train.eval_every=0", "planner.num_candidates=32",
                                                   "planner.num_elites=4"])
     trainer = MPAIL2Trainer(cfg, run_dir=tmp_path / "run")

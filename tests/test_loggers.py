@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHORT_RUN = ["--preset", "point_mass", "train.progress=false", "train.num_demos=2", "train.total_episodes=2",
-             "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=2", "train.eval_episodes=1",
+SHORT_RUN = ["--preset", "point_mass", "train.progress=false", "train.figures=false", "train.num_demos=2",
+             "train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_every=2",
+             "train.eval_episodes=1",
              "planner.num_candidates=32", "planner.num_elites=4"]
 #: Tags every run logs: a loss, a planner statistic and the headline evaluation figure.
 EXPECTED_TAGS = ("losses/loss_dynamics", "planner/elite_ess", "eval/environment/success_rate_any_step")

@@ -13,8 +13,8 @@ from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 def point_mass_run(tmp_path, **overrides):
     record_demos(make_env("point_mass", seed=5), PointMassExpert(), 2, out=tmp_path / "demos", progress=False)
     cfg = apply_overrides(preset("point_mass"), {
-        "train.progress": False, "train.logger": "none", "train.warmup_episodes": 3, "train.utd": 0.02,
-        "train.eval_episodes": 1, "train.num_demos": 2, "train.demos": str(tmp_path / "demos"),
+        "train.progress": False, "train.logger": "none", "train.figures": False, "train.warmup_episodes": 3,
+        "train.utd": 0.02, "train.eval_episodes": 1, "train.num_demos": 2, "train.demos": str(tmp_path / "demos"),
         "planner.num_candidates": 32, "planner.num_elites": 4, **overrides})
     return MPAIL2Trainer(cfg, run_dir=tmp_path / "run")
 

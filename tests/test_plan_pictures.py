@@ -78,8 +78,9 @@ def test_the_command_line_draws_a_checkpoint_of_a_run(tmp_path):
 
     record_demos(make_env("point_mass", seed=5), PointMassExpert(), 2, out=tmp_path / "demos", progress=False)
     cfg = apply_overrides(preset("point_mass"), {
-        "train.progress": False, "train.logger": "none", "train.total_episodes": 2, "train.warmup_episodes": 1,
-        "train.utd": 0.05, "train.eval_every": 2, "train.eval_episodes": 1, "train.checkpoint_every": 2,
+        "train.progress": False, "train.logger": "none", "train.figures": False, "train.total_episodes": 2,
+        "train.warmup_episodes": 1, "train.utd": 0.05, "train.eval_every": 2, "train.eval_episodes": 1,
+        "train.checkpoint_every": 2,
         "train.num_demos": 2, "train.demos": str(tmp_path / "demos"), "planner.num_candidates": 32,
         "planner.num_elites": 4})
     MPAIL2Trainer(cfg, run_dir=tmp_path / "run").train()

@@ -21,12 +21,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", *overrides])
+    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+                                                     *overrides])
 
 
 def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path):
     """About two minutes on 2 CPU cores: >= 80% deterministic evaluation success after 35 episodes."""
-    trainer = MPAIL2Trainer(_cfg("train.total_episodes=35", "train.eval_every=35", "train.eval_episodes=10"),
+    trainer = MPAIL2Trainer(_cfg("train.total_episodes=35", "train.eval_every=35", "train.eval_episodes=10",
+                                 "train.figures=true"),
                             run_dir=tmp_path / "run")
     summary = trainer.train()
     assert summary["last_eval"]["success_rate"] >= 0.8, summary
@@ -60,6 +62,7 @@ def test_policy_only_ablation_runs(tmp_path):
     assert summary["episodes"] == 3 and summary["updates"] > 0
     records = [json.loads(line) for line in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
     assert all("policy_influence" not in r and "elite_return" not in r for r in records)  # no planner
+    assert not (tmp_path / "r" / "curves.png").exists()  # train.figures=false
     assert all(r["actions_per_s"] > 0 for r in records if not r["random_actions"])
 
 
@@ -151,7 +154,8 @@ def _wait_for(predicate, timeout, proc):
 def test_killed_run_resumes_with_counters_buffer_and_weights(tmp_path):
     run = tmp_path / "run"
     args = [sys.executable, "-m", "torchrl_mpail2.train", "--preset", "point_mass", "train.progress=false",
-            "train.logger=csv", "train.total_episodes=10", "train.warmup_episodes=1", "train.utd=0.1",
+            "train.logger=csv", "train.figures=false", "train.num_demos=2", "planner.num_candidates=32",
+            "planner.num_elites=4", "train.total_episodes=10", "train.warmup_episodes=1", "train.utd=0.1",
             "train.eval_every=2", "train.eval_episodes=1", "train.checkpoint_every=0", f"train.run_dir={run}"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(args, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

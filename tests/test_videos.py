@@ -8,8 +8,9 @@ from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.num_demos=2",
-                                                  "train.total_episodes=2", "train.warmup_episodes=1",
+    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+                                                  "train.num_demos=2", "train.total_episodes=2",
+                                                  "train.warmup_episodes=1",
                                                   "train.utd=0.05", "train.eval_every=2", "train.eval_episodes=3",
                                                   "planner.num_candidates=32", "planner.num_elites=4", *overrides])
 

@@ -100,6 +100,10 @@ class TrainConfig:
     environments write their tensors there too. Replay and demonstrations stay in host memory."""
     progress: bool = True
     """Show a tqdm progress bar."""
+    figures: bool = True
+    """Redraw ``curves.png`` and ``learner.png`` in the run folder at each evaluation and at the end (about a second
+    of one CPU core each time); false leaves them out (``python -m torchrl_mpail2.trainers.plots RUN_DIR`` draws
+    them from the logs at any time)."""
     update_precision: str = "float32"
     """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16_stop_gradient (bf16 autocast for the
     computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and

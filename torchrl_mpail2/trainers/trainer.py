@@ -380,7 +380,10 @@ class MPAIL2Trainer:
         return evaluation
 
     def _draw_figures(self) -> None:
-        """Redraw the run folder's figures (``curves.png``, ``learner.png``); their time counts under ``log``."""
+        """Redraw the run folder's figures (``curves.png``, ``learner.png``) unless ``train.figures`` is off; their time
+        counts under ``log``."""
+        if not self.cfg.train.figures:
+            return
         tick = time.perf_counter()
         plot_run(self.run_dir, self.cfg.train.success_window)
         self._time("log", time.perf_counter() - tick)
