@@ -263,3 +263,45 @@ def test_demo_api_is_reexported_at_the_top_level():
     for name in ("record_demos", "load_demos", "save_demos", "demos_from_arrays", "DemoBuffer", "Demonstrations"):
         assert getattr(torchrl_mpail2, name) is getattr(data, name), name  # one home: torchrl_mpail2.data
         assert name in torchrl_mpail2.__all__
+
+
+def test_a_demo_cache_written_by_another_run_meanwhile_is_loaded_not_fatal(monkeypatch, caplog):
+    """Two runs of the same seed started together both record the cache; the later save finds the earlier one's."""
+    import logging
+
+    from torchrl_mpail2.trainers import apply_overrides, preset
+    from torchrl_mpail2.trainers import run_demos
+
+    cfg = apply_overrides(preset("point_mass"), ["train.num_demos=2", "train.progress=false"])
+    path = run_demos.default_demo_dir(cfg)
+    real_record = run_demos.record_demos
+
+    def record_while_another_run_saves(*args, **kwargs):
+        demos = real_record(*args, **kwargs)
+        save_demos(real_record(*args, **kwargs), path)  # the other run wins the race
+        return demos
+
+    monkeypatch.setattr(run_demos, "record_demos", record_while_another_run_saves)
+    env = make_env("point_mass")
+    with caplog.at_level(logging.INFO, logger=run_demos.__name__):
+        demos = run_demos.load_or_record_demos(cfg, env, lambda seed=0: make_env("point_mass", seed=seed))
+    assert "written by another run meanwhile" in caplog.text
+    assert demos.num_episodes == 2 and torch.equal(demos.observations["observation"],
+                                                   load_demos(path).observations["observation"])
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]  # no staging folder left behind
+
+
+def test_save_demos_names_a_folder_moved_into_place_by_another_writer(tmp_path, monkeypatch):
+    demos = record_demos(make_env("point_mass"), PointMassExpert(), episodes=1, progress=False)
+    target = tmp_path / "pm"
+    real_replace = os.replace
+
+    def replace_after_another_writer(src, dst):
+        monkeypatch.setattr(os, "replace", real_replace)  # the other writer renames as usual
+        save_demos(demos, dst)  # and lands between this save's check and its rename
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace_after_another_writer)
+    with pytest.raises(FileExistsError, match="written meanwhile by another process"):
+        save_demos(demos, target)
+    assert load_demos(target).num_episodes == 1 and [p.name for p in tmp_path.iterdir()] == ["pm"]

@@ -51,9 +51,14 @@ def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False)
         header = {key: value for key, value in demos.header.items() if key != "files"}
         header["files"] = files
         (staging / HEADER_FILE).write_text(json.dumps(header, indent=1))
-        if path.exists():
+        if path.exists() and overwrite:
             shutil.rmtree(path)
-        os.replace(staging, path)
+        try:
+            os.replace(staging, path)
+        except OSError as error:  # another writer moved its folder into place after the check above
+            if path.exists():
+                raise FileExistsError(f"{path} exists (written meanwhile by another process)") from error
+            raise
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from torchrl.envs import EnvBase
 
-from torchrl_mpail2.data import Demonstrations, load_demo_source, load_demos, record_demos
+from torchrl_mpail2.data import Demonstrations, load_demo_source, load_demos, record_demos, save_demos
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.trainers.config import ExperimentConfig
 
@@ -27,7 +27,8 @@ def default_demo_dir(cfg: ExperimentConfig) -> Path:
 
 def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) -> Demonstrations:
     """``train.demos`` if set (a folder or ``<format>:<path>``), else the cached scripted demos, recorded on first
-    use with ``env_fn(seed=...)`` and the env's scripted expert."""
+    use with ``env_fn(seed=...)`` and the env's scripted expert. Two runs that record the same cache at once (the
+    same env, options, count and seed, so the same episodes) both go on: the later one loads the earlier one's."""
     t = cfg.train
     if t.demos is not None:
         return load_demo_source(t.demos, env, progress=t.progress)
@@ -40,6 +41,12 @@ def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) 
     options = {"seed": seed, **t.expert_kwargs} if t.expert_kwargs else {}
     expert = get_expert(t.env, demo_env, **options)
     log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
-    return record_demos(demo_env, expert, t.num_demos, out=path, seed=seed, progress=t.progress,
-                        steps_after_success=t.demo_steps_after_success,
-                        env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
+    demos = record_demos(demo_env, expert, t.num_demos, seed=seed, progress=t.progress,
+                         steps_after_success=t.demo_steps_after_success,
+                         env_id=t.env, env_kwargs={"obs": t.obs, **(t.env_kwargs or {})})
+    try:
+        save_demos(demos, path)
+    except FileExistsError:
+        log.info("%s was written by another run meanwhile; using it", path)
+        return load_demos(path, env)
+    return demos
