@@ -9,7 +9,9 @@ timed at the paper configuration.
 2. Training: two point-mass episodes with ``train.device=--device`` through the trainer (collection, replay,
    updates, evaluation, checkpoints).
 3. Speed at the paper configuration (latent 512, hidden [512, 512], N 512, K 64, J 5, H 7, Lift state
-   observations): planning calls per second with one env, fp32 and bf16, and the update time at batch 256.
+   observations): planning calls per second with one env (``--env-batches`` for more at once), fp32 and bf16
+   (``--compile-modes``: also with ``planner.compile`` in those modes, the first call's time reported; on a GPU the
+   kernels per call and GPU-busy time from the profiler), and the update time at batch 256.
 Writes ``docs/results/speed/device_smoke.json`` (``--out`` to change).
 """
 from __future__ import annotations
@@ -31,10 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SETTINGS, random_observations, replay_batch  # noqa: E402
 
 from torchrl_mpail2 import LatentMPPIPlanner, MPAIL2Loss, MPAIL2Updater, PlannerConfig  # noqa: E402
-from torchrl_mpail2.config import LossConfig  # noqa: E402
+from torchrl_mpail2.config import COMPILE_MODES, LossConfig  # noqa: E402
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "speed"
+#: planner variants whose kernels are profiled on a GPU
+PROFILED = ("fp32", "bf16", "fp32_compiled_reduce_overhead", "bf16_compiled_reduce_overhead")
 
 
 def synchronize(device: torch.device) -> None:
@@ -89,21 +93,43 @@ def train_two_episodes(device: torch.device, utd: float = 1.0) -> dict:
                 "seconds": time.perf_counter() - start, "time_split_s": summary["time_split_s"]}
 
 
-def speed(device: torch.device, calls: int, updates: int, batch: int) -> dict:
-    setting = SETTINGS["paper"]
-    modules = setting.modules(seed=0).to(device)
-    obs = TensorDict(random_observations(setting.observations, 1), [1]).to(device)
-    out = {}
-    for label, bf16 in (("fp32", False), ("bf16", True)):
-        planner = LatentMPPIPlanner(modules, _action_spec(setting.action_dim, device), PlannerConfig(bf16=bf16))
-        for _ in range(3):
-            planner(obs.clone())
-        synchronize(device)
+def _calls_per_s(planner, obs: TensorDict, calls: int, device: torch.device) -> float:
+    for _ in range(3):
+        planner(obs.clone())
+    synchronize(device)
+    start = time.perf_counter()
+    for _ in range(calls):
+        planner(obs.clone())
+    synchronize(device)
+    return calls / (time.perf_counter() - start)
+
+
+def kernel_profile(planner, obs: TensorDict, calls: int = 5) -> dict:
+    """GPU kernels launched and GPU-busy time per planning call against its wall time (is the call launch-bound?)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    planner(obs.clone())
+    torch.cuda.synchronize()
+    with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
         start = time.perf_counter()
         for _ in range(calls):
             planner(obs.clone())
-        synchronize(device)
-        out[f"planning_calls_per_s_{label}"] = calls / (time.perf_counter() - start)
+        torch.cuda.synchronize()
+        wall = time.perf_counter() - start
+    kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
+    busy_us = sum(e.device_time for e in kernels)
+    return {"kernels_per_call": len(kernels) / calls, "gpu_busy_ms_per_call": busy_us / 1000 / calls,
+            "wall_ms_per_call_profiled": 1000 * wall / calls}
+
+
+def speed(device: torch.device, calls: int, updates: int, batch: int, compile_modes: tuple[str, ...] = (),
+          env_batches: tuple[int, ...] = (1,)) -> dict:
+    """The update time and planning calls per second at the paper configuration: fp32 and bf16, also compiled in
+    each of ``compile_modes``, for each number of envs planned for at once in ``env_batches``."""
+    setting = SETTINGS["paper"]
+    modules = setting.modules(seed=0).to(device)
+    spec = _action_spec(setting.action_dim, device)
+    out = {}
     td = replay_batch(setting, batch, steps=modules.cfg.horizon).to(device)
     updater = MPAIL2Updater(MPAIL2Loss(modules, LossConfig(transitions_per_window=1)), retain_memory=False)
     updater.update(td)
@@ -114,6 +140,27 @@ def speed(device: torch.device, calls: int, updates: int, batch: int) -> dict:
     synchronize(device)
     out["update_ms"] = 1000 * (time.perf_counter() - start) / updates
     out["update_batch"] = batch
+    print(json.dumps(out), flush=True)
+    variants = [("fp32", False, None), ("bf16", True, None)]
+    for mode in compile_modes:
+        tag = "compiled" if mode == "default" else f"compiled_{mode.replace('-', '_')}"
+        variants += [(f"fp32_{tag}", False, mode), (f"bf16_{tag}", True, mode)]
+    for num_envs in env_batches:
+        obs = TensorDict(random_observations(setting.observations, num_envs), [num_envs]).to(device)
+        suffix = "" if num_envs == 1 else f"_{num_envs}envs"
+        for label, bf16, mode in variants:
+            compiled = mode is not None
+            planner = LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=bf16, compile=compiled,
+                                                                     compile_mode=mode or "default"))
+            start = time.perf_counter()
+            planner(obs.clone())  # compiles here with compile=True
+            synchronize(device)
+            if compiled:
+                out[f"first_call_s_{label}{suffix}"] = time.perf_counter() - start
+            out[f"planning_calls_per_s_{label}{suffix}"] = _calls_per_s(planner, obs, calls, device)
+            if device.type == "cuda" and label in PROFILED:
+                out[f"profile_{label}{suffix}"] = kernel_profile(planner, obs)
+            print(json.dumps({k: v for k, v in out.items() if k.endswith(f"{label}{suffix}")}), flush=True)
     return out
 
 
@@ -122,6 +169,10 @@ def main() -> None:
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--quick", action="store_true", help="small planner and few timed calls (a smoke run)")
     p.add_argument("--out", type=Path, default=RESULTS / "device_smoke.json")
+    p.add_argument("--compile-modes", nargs="*", default=[], choices=COMPILE_MODES,
+                   help="also time the planner with PlannerConfig.compile in these modes (first call's time reported)")
+    p.add_argument("--env-batches", type=int, nargs="+", default=[1],
+                   help="numbers of envs planned for in one call (each timed)")
     args = p.parse_args()
     device = torch.device(args.device)
     small = PlannerConfig(num_candidates=64, num_elites=8, iterations=2)
@@ -132,7 +183,8 @@ def main() -> None:
     result["training"] = train_two_episodes(device, utd=0.2 if args.quick else 1.0)
     print(json.dumps(result["training"]), flush=True)
     result["speed_paper_config"] = speed(device, calls=3 if args.quick else 50, updates=2 if args.quick else 20,
-                                         batch=32 if args.quick else 256)
+                                         batch=32 if args.quick else 256, compile_modes=tuple(args.compile_modes),
+                                         env_batches=tuple(args.env_batches))
     print(json.dumps(result["speed_paper_config"]), flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2))

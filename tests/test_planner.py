@@ -7,7 +7,7 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from conftest import tiny_modules
-from torchrl_mpail2 import LatentMPPIPlanner, PlannerConfig
+from torchrl_mpail2 import ConfigError, LatentMPPIPlanner, PlannerConfig
 from torchrl_mpail2.modules.reward import RewardNet
 
 GOAL = torch.tensor([0.5, -0.3])
@@ -252,9 +252,15 @@ def test_a_compiling_planner_copies_and_pickles_before_and_without_its_graphs():
         assert "_compiled_score" not in clone.__dict__ and clone.cfg.compile
 
 
+def test_an_unknown_compile_mode_is_refused_by_name():
+    with pytest.raises(ConfigError, match="compile_mode 'fast'"):
+        PlannerConfig(compile=True, compile_mode="fast")
+
+
 @pytest.mark.slow
-def test_the_compiled_planner_plans_as_the_eager_one_in_training_and_evaluation():
-    eager, compiled = _twin_planners()
+@pytest.mark.parametrize("compile_mode", ["default", "reduce-overhead"])
+def test_the_compiled_planner_plans_as_the_eager_one_in_training_and_evaluation(compile_mode):
+    eager, compiled = _twin_planners(compile_mode=compile_mode)
     observations = TensorDict({"observation": torch.randn(2, 3)}, [2])
     for mode in (ExplorationType.RANDOM, ExplorationType.DETERMINISTIC, ExplorationType.RANDOM):
         with set_exploration_type(mode):

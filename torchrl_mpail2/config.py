@@ -261,6 +261,8 @@ class LossConfig:
 
 #: Forms of the planner's terminal value (:attr:`PlannerConfig.terminal_value`).
 TERMINAL_VALUES = ("policy_action", "plan_last_action")
+#: ``torch.compile`` modes of the plan scoring (:attr:`PlannerConfig.compile_mode`).
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs")
 #: How the MPPI temperature is measured (``PlannerConfig.temperature_scale``).
 TEMPERATURE_SCALES = ("absolute", "elite_spread")
 
@@ -292,6 +294,10 @@ class PlannerConfig:
     """Compile the plan scoring (latent rollout, rewards, terminal value) with ``torch.compile``, once per batch
     shape and precision; training and evaluation calls share the graphs. Off by default: compiling costs minutes
     on a CPU and changes the last bits of the returns (``benchmarks/compile_speed.py``)."""
+    compile_mode: str = "default"
+    """``torch.compile`` mode with ``compile``: ``default``, ``reduce-overhead`` (CUDA graphs on a GPU: one launch
+    per scoring call instead of hundreds; the returns are copied out of the graph's memory) or
+    ``max-autotune-no-cudagraphs``."""
     terminal_value: str = "policy_action"
     """How a plan's return is closed: ``policy_action`` (H rewards + gamma^H Q(z_H, pi(z_H)), TD-MPC2's form) or
     ``plan_last_action`` (H - 1 rewards + gamma^(H-1) Q(z_{H-1}, a_{H-1}), the authors' code: Q scores the plan's
@@ -310,6 +316,8 @@ class PlannerConfig:
             )
         if self.terminal_value not in TERMINAL_VALUES:
             raise ConfigError(f"unknown PlannerConfig.terminal_value {self.terminal_value!r}; choose from {TERMINAL_VALUES}")
+        if self.compile_mode not in COMPILE_MODES:
+            raise ConfigError(f"unknown PlannerConfig.compile_mode {self.compile_mode!r}; choose from {COMPILE_MODES}")
         if self.temperature_scale not in TEMPERATURE_SCALES:
             raise ConfigError(f"unknown PlannerConfig.temperature_scale {self.temperature_scale!r}; "
                               f"choose from {TEMPERATURE_SCALES}")

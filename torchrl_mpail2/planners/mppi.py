@@ -27,6 +27,17 @@ def _to_bf16(t: Tensor) -> Tensor:
     return t.to(torch.bfloat16) if t.is_floating_point() else t
 
 
+def _outside_graph_memory(scorer):
+    """Wraps a scorer compiled with CUDA graphs: each call starts a new graph step and copies the returns out of the
+    graph's memory, which the next replay overwrites (the policy samples' returns are kept across iterations)."""
+
+    def scored(z: Tensor, plans: Tensor, heads: Tensor) -> Tensor:
+        torch.compiler.cudagraph_mark_step_begin()
+        return scorer(z, plans, heads).clone()
+
+    return scored
+
+
 class LatentMPPIPlanner(MPCPlannerBase):
     r"""MPPI in the learned latent space, warm-started by the previous plan and seeded by :math:`\pi_\phi`.
 
@@ -176,7 +187,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
             return self.score
         compiled = self.__dict__.get("_compiled_score")
         if compiled is None:
-            compiled = self.__dict__["_compiled_score"] = torch.compile(self.score, dynamic=False)
+            compiled = torch.compile(self.score, dynamic=False, mode=self.cfg.compile_mode)
+            if self.cfg.compile_mode == "reduce-overhead":
+                compiled = _outside_graph_memory(compiled)
+            self.__dict__["_compiled_score"] = compiled
         return compiled
 
     def __getstate__(self):
