@@ -7,6 +7,8 @@ from torchrl_mpail2.modules import MPAIL2Modules
 
 TINY = dict(latent_dim=16, hidden_dims=(32, 32), coder_dim=32, vector_coder_hidden=32, cnn_channels=8, horizon=3)
 BATCH_SHAPES = [(), (4,), (2, 3)]
+#: Overrides of a short test run that leaves out what only a person watches: the progress bar, the logger, the figures.
+QUIET_RUN = ["train.progress=false", "train.logger=none", "train.figures=false"]
 
 
 @pytest.fixture(autouse=True)

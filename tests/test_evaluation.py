@@ -2,10 +2,12 @@
 import torch
 
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from conftest import QUIET_RUN
+
 
 
 def _trainer(tmp_path, *overrides):
-    cfg = apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+    cfg = apply_overrides(preset("point_mass"), [*QUIET_RUN,
                                                  "train.eval_episodes=3", "planner.num_candidates=32",
                                                  "planner.num_elites=4", *overrides])
     return MPAIL2Trainer(cfg, run_dir=tmp_path / "run")

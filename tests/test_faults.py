@@ -5,6 +5,8 @@ import pytest
 
 from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
 from torchrl_mpail2.trainers import TrainConfig, apply_overrides, preset
+from conftest import QUIET_RUN
+
 
 
 # ---- configuration -----------------------------------------------------------------------------------
@@ -153,7 +155,7 @@ def demo_dir(tmp_path_factory):
 
 def _cfg(demo_dir, *overrides):
     return apply_overrides(preset("point_mass"), [
-        "train.progress=false", "train.logger=none", "train.figures=false", f"train.demos={demo_dir}",
+        *QUIET_RUN, f"train.demos={demo_dir}",
         "train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.02", "train.batch_size=8",
         "train.eval_every=0",
         "train.checkpoint_every=0", "planner.num_candidates=32", "planner.num_elites=4", *overrides])
@@ -487,7 +489,7 @@ def test_a_run_killed_at_random_moments_and_resumed_ends_like_an_uninterrupted_o
 
     run = tmp_path / "run"
     args = [sys.executable, "-m", "torchrl_mpail2.train", "--preset", "point_mass"]
-    overrides = ["train.progress=false", "train.logger=none", "train.figures=false", f"train.demos={demo_dir}",
+    overrides = [*QUIET_RUN, f"train.demos={demo_dir}",
                  "train.warmup_episodes=1", "train.batch_size=8", "planner.num_candidates=32", "planner.num_elites=4",
                  *settings, f"train.run_dir={run}"]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}

@@ -16,12 +16,14 @@ from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import ExperimentConfig, MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.data.checkpoint import read_checkpoint
+from conftest import QUIET_RUN
+
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), ["train.progress=false", "train.logger=none", "train.figures=false",
+    return apply_overrides(preset("point_mass"), [*QUIET_RUN,
                                                      *overrides])
 
 
