@@ -295,9 +295,9 @@ class PlannerConfig:
     shape and precision; training and evaluation calls share the graphs. Off by default: compiling costs minutes
     on a CPU and changes the last bits of the returns (``benchmarks/compile_speed.py``)."""
     compile_mode: str = "default"
-    """``torch.compile`` mode with ``compile``: ``default``, ``reduce-overhead`` (CUDA graphs on a GPU: one launch
-    per scoring call instead of hundreds; the returns are copied out of the graph's memory) or
-    ``max-autotune-no-cudagraphs``."""
+    """``torch.compile`` mode with ``compile``: ``default``, ``reduce-overhead`` (the scoring replayed as CUDA graphs
+    on a GPU, against the launch overhead that bounds a planning call there; the returns are copied out of the
+    graphs' memory; not timed on a GPU yet) or ``max-autotune-no-cudagraphs``."""
     terminal_value: str = "policy_action"
     """How a plan's return is closed: ``policy_action`` (H rewards + gamma^H Q(z_H, pi(z_H)), TD-MPC2's form) or
     ``plan_last_action`` (H - 1 rewards + gamma^(H-1) Q(z_{H-1}, a_{H-1}), the authors' code: Q scores the plan's
