@@ -68,5 +68,15 @@ def test_a_seed_short_of_its_episodes_is_extended_only_when_asked(bench, tmp_pat
     assert bench.seed_command(run, 0, args, []) is None
     args.extend_min = 30.0
     cmd = bench.seed_command(run, 0, args, [])
-    assert cmd[-3:] == ["--resume", str(run), "train.max_wall_s=1800.0"]
+    assert cmd[-4:] == ["--resume", str(run), "train.total_episodes=300", "train.max_wall_s=1800.0"]
     assert not (run / "summary.json").exists() and (run / "summary.part0.json").exists()
+
+
+def test_a_finished_seed_is_extended_to_more_episodes_and_an_interrupted_one_resumes_to_them(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2), (100, 0.8, 0.8)], episodes=100)
+    run = tmp_path / "demo" / "seed0"
+    args = type("Args", (), {"episodes": 300, "extend_min": 60.0})()
+    cmd = bench.seed_command(run, 0, args, [])  # the earlier launch asked for 100: the resume must ask for 300
+    assert "train.total_episodes=300" in cmd and "--resume" in cmd
+    (run / "checkpoints" / "last").mkdir(parents=True)  # the extension was interrupted: no summary, a checkpoint
+    assert bench.seed_command(run, 0, args, [])[-3:] == ["--resume", str(run), "train.total_episodes=300"]
