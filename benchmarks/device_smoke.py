@@ -105,16 +105,15 @@ def _calls_per_s(planner, obs: TensorDict, calls: int, device: torch.device) -> 
 
 
 def kernel_profile(planner, obs: TensorDict, calls: int = 5) -> dict:
-    """GPU kernels launched and GPU-busy time per planning call against its wall time (is the call launch-bound?)."""
+    """GPU kernels launched and GPU-busy time per planning call of a warmed-up planner against its wall time (is the
+    call launch-bound?)."""
     from torch.profiler import ProfilerActivity, profile
 
-    planner(obs.clone())
-    torch.cuda.synchronize()
     with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
         start = time.perf_counter()
         for _ in range(calls):
             planner(obs.clone())
-        torch.cuda.synchronize()
+        synchronize(obs.device)
         wall = time.perf_counter() - start
     kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
     busy_us = sum(e.device_time for e in kernels)

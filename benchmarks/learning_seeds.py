@@ -50,15 +50,15 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
     ``--episodes``, so a finished run is extended by asking for more episodes with ``--extend-min``.
     """
     base = [sys.executable, "-m", "torchrl_mpail2.train"]
+    resume = [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}"]
     if (run_dir / "summary.json").exists():
         if args.extend_min and _episodes_done(run_dir) < args.episodes:
             # the earlier part's summary is kept so that the seed's wall time adds up over its parts
             (run_dir / "summary.json").rename(run_dir / f"summary.part{len(list(run_dir.glob('summary.part*.json')))}.json")
-            return [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}",
-                    f"train.max_wall_s={args.extend_min * 60}"]
+            return [*resume, f"train.max_wall_s={args.extend_min * 60}"]
         return None
     if (run_dir / "checkpoints" / "last").exists():
-        return [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}"]
+        return resume
     shutil.rmtree(run_dir, ignore_errors=True)  # nothing checkpointed yet: start afresh
     run_dir.parent.mkdir(parents=True, exist_ok=True)
     every = f"train.eval_every={args.eval_every}"

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from conftest import QUIET_RUN
 from torchrl_mpail2.agents import ABLATIONS, AgentSwitches, MPAIL2Agent, switches_for
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
 from torchrl_mpail2.data import record_demos
@@ -15,8 +16,6 @@ from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import PointMassExpert
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
-from conftest import QUIET_RUN
-
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_MODEL = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
@@ -24,8 +23,7 @@ TINY_PLANNER = PlannerConfig(num_candidates=16, num_elites=4, iterations=2)
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), [*QUIET_RUN,
-                                                  "train.eval_episodes=3", "planner.num_candidates=32",
+    return apply_overrides(preset("point_mass"), [*QUIET_RUN, "train.eval_episodes=3", "planner.num_candidates=32",
                                                   "planner.num_elites=4", *overrides])
 
 

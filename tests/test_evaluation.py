@@ -1,14 +1,12 @@
 """Evaluation that can decide between configurations: fixed initial states, seeded planner noise."""
 import torch
 
-from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from conftest import QUIET_RUN
-
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
 
 def _trainer(tmp_path, *overrides):
-    cfg = apply_overrides(preset("point_mass"), [*QUIET_RUN,
-                                                 "train.eval_episodes=3", "planner.num_candidates=32",
+    cfg = apply_overrides(preset("point_mass"), [*QUIET_RUN, "train.eval_episodes=3", "planner.num_candidates=32",
                                                  "planner.num_elites=4", *overrides])
     return MPAIL2Trainer(cfg, run_dir=tmp_path / "run")
 

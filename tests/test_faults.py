@@ -3,10 +3,9 @@ from dataclasses import fields
 
 import pytest
 
+from conftest import QUIET_RUN
 from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
 from torchrl_mpail2.trainers import TrainConfig, apply_overrides, preset
-from conftest import QUIET_RUN
-
 
 
 # ---- configuration -----------------------------------------------------------------------------------

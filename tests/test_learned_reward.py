@@ -6,13 +6,12 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
+from conftest import QUIET_RUN
 from torchrl_mpail2.agents import LearnedRewardTransform
 from torchrl_mpail2.config import ModelConfig
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.modules import make_mpail2_modules
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
-from conftest import QUIET_RUN
-
 
 TINY = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
 
@@ -85,8 +84,7 @@ def test_the_reward_networks_are_frozen_for_downstream_losses():
 
 
 def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path):
-    cfg = apply_overrides(preset("point_mass"), [*QUIET_RUN,
-                                                  "train.num_demos=3", "train.total_episodes=3",
+    cfg = apply_overrides(preset("point_mass"), [*QUIET_RUN, "train.num_demos=3", "train.total_episodes=3",
                                                   "train.warmup_episodes=1", "train.utd=0.05",
                                                   "train.eval_every=0", "planner.num_candidates=32",
                                                   "planner.num_elites=4"])

@@ -12,19 +12,17 @@ import pytest
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from conftest import QUIET_RUN
 from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import ExperimentConfig, MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.data.checkpoint import read_checkpoint
-from conftest import QUIET_RUN
-
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), [*QUIET_RUN,
-                                                     *overrides])
+    return apply_overrides(preset("point_mass"), [*QUIET_RUN, *overrides])
 
 
 def test_mpail2_learns_the_point_mass_and_beats_random(tmp_path):

@@ -3,15 +3,13 @@ import imageio
 import numpy as np
 import pytest
 
+from conftest import QUIET_RUN
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
-from conftest import QUIET_RUN
-
 
 
 def _cfg(*overrides):
-    return apply_overrides(preset("point_mass"), [*QUIET_RUN,
-                                                  "train.num_demos=2", "train.total_episodes=2",
+    return apply_overrides(preset("point_mass"), [*QUIET_RUN, "train.num_demos=2", "train.total_episodes=2",
                                                   "train.warmup_episodes=1",
                                                   "train.utd=0.05", "train.eval_every=2", "train.eval_episodes=3",
                                                   "planner.num_candidates=32", "planner.num_elites=4", *overrides])
