@@ -149,6 +149,11 @@ def speed(device: torch.device, calls: int, updates: int, batch: int, compile_mo
         suffix = "" if num_envs == 1 else f"_{num_envs}envs"
         for label, bf16, mode in variants:
             compiled = mode is not None
+            if compiled:
+                # every variant compiles afresh: the compiled scorer's cache is per code object, shared by all
+                # planners of the process, and past torch._dynamo's recompile limit (8 shapes and modes here)
+                # it would silently run eagerly
+                torch._dynamo.reset()
             planner = LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=bf16, compile=compiled,
                                                                      compile_mode=mode or "default"))
             start = time.perf_counter()

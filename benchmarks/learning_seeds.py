@@ -30,6 +30,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import child_env  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)
 
@@ -70,7 +72,7 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
 def run_seeds(args, overrides: list[str]) -> None:
     pending = [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds]
     running: list[tuple[int, subprocess.Popen]] = []
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    env = child_env(threads=1)
     while pending or running:
         while pending and len(running) < args.parallel:
             seed, run_dir = pending.pop(0)

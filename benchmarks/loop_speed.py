@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import subprocess
 import sys
@@ -24,6 +23,8 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _common import child_env  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "speed"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 
@@ -36,8 +37,9 @@ def run_one(preset: str, threads: int, episodes: int, scratch: Path, extra: list
            f"train.total_episodes={episodes}", f"train.eval_every={episodes}", "train.eval_episodes=5",
            f"train.checkpoint_every={episodes}", f"train.warmup_episodes={warmup}", f"train.num_envs={num_envs}",
            *extra]
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": str(threads)}
-    subprocess.run(cmd, check=True, cwd=scratch, env=env, capture_output=True)
+    proc = subprocess.run(cmd, cwd=scratch, env=child_env(threads), capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"training run {run_dir.name} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
     summary = json.loads((run_dir / "summary.json").read_text())
     split = summary["time_split_s"]
     total = split["total"]

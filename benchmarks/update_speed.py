@@ -29,7 +29,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
+from _common import SETTINGS, child_env, machine, median_ms, replay_batch  # noqa: E402
 
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
             "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",
@@ -107,8 +107,7 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
 def run_worker(args, setting: str, variant: str, profile: bool) -> dict:
     cmd = [sys.executable, __file__, "--worker", setting, variant, "--batch", str(args.batch), "--steps", str(args.steps),
            "--updates", str(args.updates), "--threads", str(args.threads)] + (["--profile"] if profile else [])
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=child_env(), cwd=ROOT)
     if proc.returncode != 0:
         raise RuntimeError(f"worker {setting}/{variant} failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -53,6 +53,9 @@ def test_state_specs_and_keys(state_envs, task):
     step = env.rand_step(td)["next"]
     assert "reward" not in step.keys() and step["task_reward"].shape == (1,)
     assert step["success"].shape == (1,)
+    # the env's tensordicts name its device: a TensorDictPrimer (the planner's warm start) builds its reset mask on
+    # the input's device, and a device-less reset made it a CPU mask beside CUDA values on a GPU
+    assert td.device == env.device and step.device == env.device
 
 
 def test_pixels_step_renders_upright_images():

@@ -349,8 +349,10 @@ class RobosuiteEnv(EnvBase):
             out["external_image"] = self._upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
         if self.obs_mode == "pixels":
             out["wrist_image"] = self._upright_chw(sim_obs[f"{WRIST_CAMERA}_image"])
+        # the TensorDict names its device: transforms such as TensorDictPrimer build their reset masks on it
         return TensorDict(
-            {key: torch.as_tensor(value, device=self.device) for key, value in out.items()}, batch_size=[]
+            {key: torch.as_tensor(value, device=self.device) for key, value in out.items()}, batch_size=[],
+            device=self.device,
         )
 
     @staticmethod
