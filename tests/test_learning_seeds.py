@@ -80,3 +80,14 @@ def test_a_finished_seed_is_extended_to_more_episodes_and_an_interrupted_one_res
     assert "train.total_episodes=300" in cmd and "--resume" in cmd
     (run / "checkpoints" / "last").mkdir(parents=True)  # the extension was interrupted: no summary, a checkpoint
     assert bench.seed_command(run, 0, args, [])[-3:] == ["--resume", str(run), "train.total_episodes=300"]
+
+
+def test_child_processes_import_the_checkout_first_and_keep_the_callers_path(bench, monkeypatch):
+    # on a borrowed GPU machine torchrl and robosuite live outside the environment, on PYTHONPATH: a child that
+    # replaced it could not import them
+    monkeypatch.setenv("PYTHONPATH", "/opt/extra/site")
+    env = bench.child_env(threads=1)
+    assert env["PYTHONPATH"].split(":") == [str(ROOT), "/opt/extra/site"]
+    assert env["OMP_NUM_THREADS"] == "1"
+    monkeypatch.delenv("PYTHONPATH")
+    assert bench.child_env()["PYTHONPATH"] == str(ROOT)
