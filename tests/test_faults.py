@@ -386,6 +386,42 @@ def test_a_batch_with_a_nan_observation_is_skipped_whole_counted_and_logged(capl
     assert sum(updater.skipped.values()) == 1
 
 
+@pytest.mark.parametrize("sync_free", [False, True], ids=["host-check", "sync-free"])
+def test_a_stage_with_a_nan_loss_is_skipped_leaving_its_weights_and_adam_state(monkeypatch, sync_free):
+    # sync-free (the GPU default, forced here on the CPU): fused Adam is handed the flag instead of a host check
+    import torch
+    from torchrl_mpail2.agents.update import MPAIL2Updater
+
+    from conftest import replay_batch
+
+    loss = _updater().loss
+    updater = MPAIL2Updater(loss, sync_free_skips=sync_free)
+    updater.update(replay_batch())  # Adam has state from here on
+    value = updater.optimizers["value"]
+    params = [p for g in value.param_groups for p in g["params"]]
+    before = [p.detach().clone() for p in params]
+    adam_before = {k: v.clone() for i, st in value.state.items() for k, v in [(f"{i}.{n}", t) for n, t in st.items()]}
+    reward_before = [p.detach().clone() for g in updater.optimizers["reward"].param_groups for p in g["params"]]
+    forward = loss.value_loss.forward
+
+    def nan_value_loss(*args, **kwargs):
+        out = forward(*args, **kwargs)
+        out.set("loss_value", out["loss_value"] * float("nan"))
+        return out
+
+    monkeypatch.setattr(loss.value_loss, "forward", nan_value_loss)
+    metrics = updater.update(replay_batch())
+    assert metrics["nonfinite_skips"].item() == 1
+    assert all(torch.equal(a, p) for a, p in zip(before, params))  # no step with NaN gradients
+    adam_after = {k: v for i, st in value.state.items() for k, v in [(f"{i}.{n}", t) for n, t in st.items()]}
+    assert adam_after.keys() == adam_before.keys()
+    assert all(torch.equal(adam_before[k], adam_after[k]) for k in adam_before), "moments or step count moved"
+    reward_after = [p for g in updater.optimizers["reward"].param_groups for p in g["params"]]
+    assert any(not torch.equal(a, p) for a, p in zip(reward_before, reward_after))  # the other stages still learn
+    assert dict(updater.skipped) == {"value": 1}
+    assert updater.state_dict()["skipped"] == {"value": 1}
+
+
 def test_one_nan_batch_through_the_loss_in_training_mode_leaves_the_reward_scale_finite():
     import torch
 
