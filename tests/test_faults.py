@@ -422,6 +422,24 @@ def test_a_stage_with_a_nan_loss_is_skipped_leaving_its_weights_and_adam_state(m
     assert updater.state_dict()["skipped"] == {"value": 1}
 
 
+@pytest.mark.parametrize("saved_sync_free, sync_free", [(False, True), (True, False)])
+def test_an_updater_resumes_another_kinds_adam_state_in_its_own_kind(saved_sync_free, sync_free):
+    # a CPU checkpoint (plain Adam) resumed on a GPU (fused Adam, NaN flag on the device), and the reverse
+    import torch
+    from torchrl_mpail2.agents.update import MPAIL2Updater
+
+    from conftest import replay_batch
+
+    saved = MPAIL2Updater(_updater().loss, sync_free_skips=saved_sync_free)
+    saved.update(replay_batch())
+    updater = MPAIL2Updater(saved.loss, sync_free_skips=sync_free)
+    updater.load_state_dict(saved.state_dict())
+    assert all(g["fused"] is (True if sync_free else None) for o in updater.optimizers.values() for g in o.param_groups)
+    metrics = updater.update(replay_batch())  # plain Adam refuses the NaN flag that fused Adam takes
+    assert torch.isfinite(metrics["loss_value"]) and metrics["nonfinite_skips"].item() == 0
+    assert all(st["step"].item() == 2 for o in updater.optimizers.values() for st in o.state.values())
+
+
 def test_one_nan_batch_through_the_loss_in_training_mode_leaves_the_reward_scale_finite():
     import torch
 

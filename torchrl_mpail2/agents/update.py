@@ -208,4 +208,12 @@ class MPAIL2Updater:
     def load_state_dict(self, state: dict) -> None:
         for k, o in self.optimizers.items():
             o.load_state_dict(state["optimizers"][k])
+            # the saving updater's Adam kernel is not necessarily this one's (a CPU checkpoint resumed on a GPU):
+            # keep this updater's, with fused Adam's step counts on the parameters' device
+            for group in o.param_groups:
+                group["fused"], group["foreach"] = (True, None) if self.sync_free_skips else (None, None)
+                for param in group["params"]:
+                    step = o.state.get(param, {}).get("step")
+                    if self.sync_free_skips and step is not None:
+                        o.state[param]["step"] = step.to(device=param.device, dtype=torch.float32)
         self.skipped = Counter(state.get("skipped", {}))  # the setter also drops pending counts
