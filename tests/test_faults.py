@@ -400,7 +400,7 @@ def test_a_stage_with_a_nan_loss_is_skipped_leaving_its_weights_and_adam_state(m
     value = updater.optimizers["value"]
     params = [p for g in value.param_groups for p in g["params"]]
     before = [p.detach().clone() for p in params]
-    adam_before = {k: v.clone() for i, st in value.state.items() for k, v in [(f"{i}.{n}", t) for n, t in st.items()]}
+    adam_before = {(id(param), name): t.clone() for param, st in value.state.items() for name, t in st.items()}
     reward_before = [p.detach().clone() for g in updater.optimizers["reward"].param_groups for p in g["params"]]
     forward = loss.value_loss.forward
 
@@ -413,7 +413,7 @@ def test_a_stage_with_a_nan_loss_is_skipped_leaving_its_weights_and_adam_state(m
     metrics = updater.update(replay_batch())
     assert metrics["nonfinite_skips"].item() == 1
     assert all(torch.equal(a, p) for a, p in zip(before, params))  # no step with NaN gradients
-    adam_after = {k: v for i, st in value.state.items() for k, v in [(f"{i}.{n}", t) for n, t in st.items()]}
+    adam_after = {(id(param), name): t for param, st in value.state.items() for name, t in st.items()}
     assert adam_after.keys() == adam_before.keys()
     assert all(torch.equal(adam_before[k], adam_after[k]) for k in adam_before), "moments or step count moved"
     reward_after = [p for g in updater.optimizers["reward"].param_groups for p in g["params"]]

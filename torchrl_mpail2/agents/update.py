@@ -196,9 +196,9 @@ class MPAIL2Updater:
             elif stage == "actor":
                 self._step("alpha", out["loss_alpha"])
             metrics.update(out)
-        skips = torch.tensor(float(sum(self._skipped.values())))
-        for pending in self._pending_skips.values():  # on the device: no synchronisation here
-            skips = skips.to(pending.device) + pending
+        counted, pending = float(sum(self._skipped.values())), list(self._pending_skips.values())
+        # pending counts stay on the device: filled there, not copied from the host (a blocking copy would wait)
+        skips = torch.full((), counted, device=pending[0].device) + sum(pending) if pending else torch.tensor(counted)
         metrics.set("nonfinite_skips", skips)
         return metrics.apply(lambda x: x.detach().float())
 
