@@ -24,7 +24,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import child_env  # noqa: E402
+from _child_env import child_env  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "speed"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 

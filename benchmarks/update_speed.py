@@ -29,7 +29,8 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SETTINGS, child_env, machine, median_ms, replay_batch  # noqa: E402
+from _child_env import child_env  # noqa: E402
+from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
             "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",

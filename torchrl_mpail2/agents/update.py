@@ -209,11 +209,13 @@ class MPAIL2Updater:
         for k, o in self.optimizers.items():
             o.load_state_dict(state["optimizers"][k])
             # the saving updater's Adam kernel is not necessarily this one's (a CPU checkpoint resumed on a GPU):
-            # keep this updater's, with fused Adam's step counts on the parameters' device
+            # keep this updater's, with the step counts where its kernel keeps them (fused: beside the parameters;
+            # plain: on the host, as a fresh plain Adam has them)
             for group in o.param_groups:
-                group["fused"], group["foreach"] = (True, None) if self.sync_free_skips else (None, None)
+                group["fused"], group["foreach"] = (True if self.sync_free_skips else None), None
                 for param in group["params"]:
                     step = o.state.get(param, {}).get("step")
-                    if self.sync_free_skips and step is not None:
-                        o.state[param]["step"] = step.to(device=param.device, dtype=torch.float32)
+                    if step is not None:
+                        o.state[param]["step"] = step.to("cpu") if not self.sync_free_skips else step.to(
+                            device=param.device, dtype=torch.float32)
         self.skipped = Counter(state.get("skipped", {}))  # the setter also drops pending counts
