@@ -1,8 +1,12 @@
 """Evaluation that can decide between configurations: fixed initial states, seeded planner noise."""
+import pytest
 import torch
 
 from conftest import QUIET_RUN
+from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluate_episodes_lockstep, summarize_outcomes
 
 
 def _trainer(tmp_path, *overrides):
@@ -12,7 +16,7 @@ def _trainer(tmp_path, *overrides):
 
 
 def _first_observations(trainer):
-    env = trainer.eval_env
+    env = trainer.env_fn(seed=0)
     firsts = []
     for seed in trainer.evaluation_seeds():
         env.set_seed(seed)
@@ -54,3 +58,43 @@ def test_best_checkpoint_is_chosen_by_any_step_success(tmp_path):
     for _ in range(3):
         trainer._evaluate_and_checkpoint()
     assert saved.count("best") == 2 and trainer.best_eval == (0.7, 0.1)
+
+
+def _steps_equal(a, b):
+    return a.batch_size == b.batch_size and all(torch.equal(a.get(k), b.get(k)) for k in
+                                                ("action", ("next", "observation"), ("next", "success")))
+
+
+def test_lockstep_evaluation_with_one_env_is_the_sequential_one_step_for_step(tmp_path):
+    trainer = _trainer(tmp_path)
+    seeds, planner = trainer.evaluation_seeds(), trainer.agent.planner
+    env = trainer.env_fn(seed=0)
+    one, stepped = [], []
+    sequential = evaluate_episodes(env, trainer.agent.policy, seeds, planner, rollouts=one)
+    lockstep = evaluate_episodes_lockstep([env], trainer.agent.policy, seeds, planner, rollouts=stepped)
+    assert sequential == lockstep
+    assert len(one) == len(stepped) == 3 and all(_steps_equal(a, b) for a, b in zip(one, stepped))
+    assert planner.generator is None
+
+
+def test_lockstep_evaluation_plays_each_seeds_episode_to_its_own_end(tmp_path):
+    trainer = _trainer(tmp_path)
+    seeds, policy, planner = trainer.evaluation_seeds(), trainer.agent.policy, trainer.agent.planner
+    # two envs whose episodes end at different steps; three seeds, so the second batch holds one episode
+    envs = [make_env("point_mass", seed=0, horizon=5), make_env("point_mass", seed=0, horizon=8)]
+    rollouts, again = [], []
+    outcomes = evaluate_episodes_lockstep(envs, policy, seeds, planner, rollouts=rollouts)
+    assert evaluate_episodes_lockstep(envs, policy, seeds, planner, rollouts=again) == outcomes  # deterministic
+    assert [r.shape[0] for r in rollouts] == [5, 8, 5]
+    assert all(bool(r["next", "done"][-1]) and not r["next", "done"][:-1].any() for r in rollouts)
+    assert torch.equal(torch.stack([r["observation"][0] for r in rollouts]), _first_observations(trainer))
+    assert summarize_outcomes(outcomes)["episodes"] == 3
+
+
+def test_the_trainer_evaluates_eval_envs_episodes_at_once(tmp_path):
+    trainer = _trainer(tmp_path, "train.eval_envs=2")
+    first = trainer.evaluate()
+    assert first == trainer.evaluate() and first["episodes"] == 3
+    assert len(trainer.eval_env_batch) == 2
+    with pytest.raises(ConfigError, match="eval_envs"):
+        _trainer(tmp_path / "bad", "train.eval_envs=0")

@@ -26,7 +26,8 @@ from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
 from torchrl_mpail2.trainers.config import ExperimentConfig, apply_resume_overrides, read_run_config, resolve_for_run
-from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds, summarize_outcomes
+from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episodes, evaluate_episodes_lockstep,
+                                                evaluation_seeds, summarize_outcomes)
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.plots import plot_run
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
@@ -159,11 +160,17 @@ class MPAIL2Trainer:
         figure; ``success_rate`` counts episodes whose last step is a success.
         """
         t = self.cfg.train
+        seeds, videos = self.evaluation_seeds(episodes), [] if t.video else None
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=t.eval_seed)
-        videos = [] if t.video else None
-        summary = summarize_outcomes(evaluate_episodes(env, self.agent.policy, self.evaluation_seeds(episodes),
-                                                       self.agent.planner, videos=videos,
-                                                       video_episodes=t.video_episodes))
+        if t.eval_envs == 1:
+            outcomes = evaluate_episodes(env, self.agent.policy, seeds, self.agent.planner, videos=videos,
+                                         video_episodes=t.video_episodes)
+        else:
+            envs = self.eval_env_batch = getattr(self, "eval_env_batch", None) or [env]
+            envs += [self.env_fn(seed=t.eval_seed + i) for i in range(len(envs), min(t.eval_envs, len(seeds)))]
+            outcomes = evaluate_episodes_lockstep(envs, self.agent.policy, seeds, self.agent.planner, videos=videos,
+                                                  video_episodes=t.video_episodes)
+        summary = summarize_outcomes(outcomes)
         if videos:
             summary["videos"] = [str(p) for p in write_videos(videos, self.run_dir / "videos",
                                                               f"eval_{self.counters['episodes']:06d}")]
