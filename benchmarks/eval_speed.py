@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +24,8 @@ from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.collection import episode_bound
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _results import write_record  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "speed"
 
 
@@ -75,14 +76,11 @@ def main() -> None:
             rows.append(time_evaluation(args.preset, eval_envs, args.episodes,
                                         [f"train.threads={args.threads}", *args.overrides], Path(scratch)))
             print(json.dumps(rows[-1]), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    result = {"preset": args.preset, "episodes": args.episodes, "threads": args.threads, "overrides": args.overrides,
-              "commit": commit, "note": args.note, "machine": {"cpu": platform.processor() or platform.machine()},
+    fields = {"preset": args.preset, "episodes": args.episodes, "threads": args.threads, "overrides": args.overrides,
               "runs": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.name}.json").write_text(json.dumps(result, indent=2))
-    (args.out / f"{args.name}.md").write_text(f"# Evaluation speed: one by one against lockstep\n\n{table(rows)}\n\n"
-                                           f"Commit {commit}; {args.threads} threads. {args.note}\n")
+    write_record(args.out, args.name, fields, args.note, ROOT,
+                 lambda commit: f"# Evaluation speed: one by one against lockstep\n\n{table(rows)}\n\n"
+                                f"Commit {commit}; {args.threads} threads. {args.note}\n")
     print(table(rows))
 
 

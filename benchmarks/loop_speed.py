@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _child_env import child_env  # noqa: E402
+from _results import write_record  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "speed"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 
@@ -83,15 +83,11 @@ def main() -> None:
                 for num_envs in args.num_envs:
                     rows.append(run_one(preset, threads, args.episodes, Path(scratch), args.overrides, num_envs, warmup))
                     print(json.dumps(rows[-1]), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    result = {"presets": args.presets, "episodes_per_run": args.episodes, "warmup_episodes": warmup,
-              "num_envs": args.num_envs, "overrides": args.overrides,
-              "commit": commit, "note": args.note, "machine": {"cpu": platform.processor() or platform.machine()},
-              "runs": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.name}.json").write_text(json.dumps(result, indent=2))
-    (args.out / f"{args.name}.md").write_text(f"# Whole-loop speed (robosuite Lift, state)\n\n{table(rows)}\n\n"
-                                           f"Commit {commit}; {args.episodes} episodes per run. {args.note}\n")
+    fields = {"presets": args.presets, "episodes_per_run": args.episodes, "warmup_episodes": warmup,
+              "num_envs": args.num_envs, "overrides": args.overrides, "runs": rows}
+    write_record(args.out, args.name, fields, args.note, ROOT,
+                 lambda commit: f"# Whole-loop speed (robosuite Lift, state)\n\n{table(rows)}\n\n"
+                                f"Commit {commit}; {args.episodes} episodes per run. {args.note}\n")
     print(table(rows))
 
 
