@@ -69,9 +69,10 @@ class TrainConfig:
     """Episodes per evaluation, deterministic planner (50 for final numbers, as in the paper's real-world tables)."""
     eval_envs: int = 1
     """Evaluation episodes played at once, in lockstep, the planner acting on all of them in one batched call
-    (``trainers.evaluation.evaluate_episodes_lockstep``): pays on a GPU, where a batch of 16 plans about as fast as
-    one; on a CPU a batched call costs about as much as its episodes one by one. The initial states are the same;
-    the planner's noise is drawn per batch, so scores compare between runs with the same ``eval_envs``."""
+    (``trainers.evaluation.evaluate_episodes_lockstep``): with 8, an evaluation took 2.7 times less time on one H200
+    at the paper configuration and 1.4 times less on 2 CPU cores with ``lift_state`` (``benchmarks/eval_speed.py``).
+    The initial states are the same; the planner's noise is drawn per batch, so scores compare between runs with
+    the same ``eval_envs`` (1, the default, is the sequential evaluation every recorded result used)."""
     video: bool = False
     """Record the first ``video_episodes`` episodes of each evaluation to ``videos/*.mp4`` in the run folder (and to
     wandb where it is the logger); needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
