@@ -2,9 +2,12 @@
 import pytest
 import torch
 
-from torchrl_mpail2.diagnostics.lift_phases import lift_phases, main, summarize_phases
+from conftest import QUIET_RUN
+from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.diagnostics.lift_phases import lift_phases, main, summarize_phases, use_planner_settings
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
 pytest.importorskip("robosuite")
 
@@ -38,3 +41,18 @@ def test_a_rollout_without_state_keys_and_a_missing_checkpoint_are_named(lift, t
         lift_phases(rollout.exclude(("next", "object")))
     with pytest.raises(Exception, match="nothere"):
         main([str(tmp_path / "nothere")])
+    with pytest.raises(ConfigError, match="train.seed"):  # refused before any checkpoint is read
+        main([str(tmp_path / "nothere"), "--planner", "train.seed=1"])
+
+
+def test_a_checkpoint_can_be_played_with_other_planner_settings(tmp_path):
+    cfg = apply_overrides(preset("point_mass"), QUIET_RUN)
+    agent = MPAIL2Trainer(cfg, run_dir=tmp_path / "run").agent
+    agent.run_config = cfg.to_dict()
+    use_planner_settings(agent, ["planner.num_candidates=64", "planner.iterations=2"])
+    assert (agent.planner.cfg.num_candidates, agent.planner.cfg.iterations) == (64, 2)
+    assert agent.planner.cfg.num_elites == cfg.planner.num_elites  # the rest as the run had it
+    with pytest.raises(ConfigError, match="planner.nope"):
+        use_planner_settings(agent, ["planner.nope=1"])
+    with pytest.raises(ConfigError, match="num_elites"):
+        use_planner_settings(agent, ["planner.num_elites=1000"])

@@ -14,6 +14,9 @@ Also per episode: the closest approach (cm), the highest rise (cm) and the first
 closing::
 
     python -m torchrl_mpail2.diagnostics lift_phases RUN/checkpoints/episode_000300 [...] --episodes 20 --out F.json
+
+``--planner planner.num_candidates=512 ...`` plays the same episodes with another planner than the run trained with
+(the networks unchanged): does a larger planner at evaluation time lift more cubes?
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["lift_phases", "summarize_phases"]
+__all__ = ["lift_phases", "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
 #: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
@@ -64,13 +67,34 @@ def summarize_phases(episodes: list[dict]) -> dict:
     return {phase: float(np.mean([bool(e[phase]) for e in episodes])) for phase in PHASES if episodes}
 
 
-def evaluate_checkpoint(path: str | Path, episodes: int) -> dict:
-    """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner -> phases."""
+def _check_planner_overrides(overrides) -> None:
+    from torchrl_mpail2.config import ConfigError
+
+    outside = [o for o in overrides if not o.startswith("planner.")]
+    if outside:
+        raise ConfigError(f"--planner takes planner.FIELD=VALUE overrides only, got {outside}")
+
+
+def use_planner_settings(agent, overrides) -> None:
+    """Gives ``agent``'s planner the run's planner settings (``agent.run_config``) changed by ``overrides``
+    (``planner.FIELD=VALUE`` strings, checked like any config override); the networks are untouched."""
+    from torchrl_mpail2.trainers.config import ExperimentConfig, apply_overrides
+
+    _check_planner_overrides(overrides)
+    if overrides:
+        agent.planner.cfg = apply_overrides(ExperimentConfig.from_dict(agent.run_config), list(overrides)).planner
+
+
+def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list[str] = ()) -> dict:
+    """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner (changed by
+    ``planner_overrides``, ``planner.FIELD=VALUE`` strings) -> phases."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.envs import make_env
     from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds
 
+    _check_planner_overrides(planner_overrides)
     agent = MPAIL2Agent.from_checkpoint(path)
+    use_planner_settings(agent, planner_overrides)
     train = agent.run_config["train"]
     if train["env"] != "robosuite/Lift" or train["obs"] != "state":
         raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' mode, this run is "
@@ -81,7 +105,8 @@ def evaluate_checkpoint(path: str | Path, episodes: int) -> dict:
                       rollouts=rollouts)
     env.close()
     per_episode = [lift_phases(rollout) for rollout in rollouts]
-    return {"checkpoint": str(path), "episodes": episodes, "phases": summarize_phases(per_episode),
+    return {"checkpoint": str(path), "episodes": episodes, "planner_overrides": list(planner_overrides),
+            "phases": summarize_phases(per_episode),
             "per_episode": per_episode}
 
 
@@ -92,12 +117,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=20, help="the run's first N fixed evaluation episodes")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--planner", nargs="+", default=[], metavar="planner.FIELD=VALUE",
+                        help="play with these planner settings instead of the run's (e.g. planner.num_candidates=512)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     results = []
     print(f"{'checkpoint':60s} " + " ".join(f"{p:>7s}" for p in PHASES))
     for path in args.checkpoints:
-        result = evaluate_checkpoint(path, args.episodes)
+        result = evaluate_checkpoint(path, args.episodes, args.planner)
         results.append(result)
         print(f"{path[-60:]:60s} " + " ".join(f"{result['phases'][p]:7.2f}" for p in PHASES), flush=True)
     if args.out:
