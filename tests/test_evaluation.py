@@ -82,10 +82,12 @@ def test_lockstep_evaluation_plays_each_seeds_episode_to_its_own_end(tmp_path):
     seeds, policy, planner = trainer.evaluation_seeds(), trainer.agent.policy, trainer.agent.planner
     # two envs whose episodes end at different steps; three seeds, so the second batch holds one episode
     envs = [make_env("point_mass", seed=0, horizon=5), make_env("point_mass", seed=0, horizon=8)]
-    rollouts, again = [], []
-    outcomes = evaluate_episodes_lockstep(envs, policy, seeds, planner, rollouts=rollouts)
+    rollouts, again, videos = [], [], []
+    outcomes = evaluate_episodes_lockstep(envs, policy, seeds, planner, rollouts=rollouts, videos=videos,
+                                          video_episodes=2)
     assert evaluate_episodes_lockstep(envs, policy, seeds, planner, rollouts=again) == outcomes  # deterministic
     assert [r.shape[0] for r in rollouts] == [5, 8, 5]
+    assert [v.shape[0] for v in videos] == [6, 9]  # the first two episodes filmed: the reset and every step
     assert all(bool(r["next", "done"][-1]) and not r["next", "done"][:-1].any() for r in rollouts)
     assert torch.equal(torch.stack([r["observation"][0] for r in rollouts]), _first_observations(trainer))
     assert summarize_outcomes(outcomes)["episodes"] == 3
