@@ -8,9 +8,13 @@ import subprocess
 from pathlib import Path
 
 
-def git_commit(root: Path) -> str:
-    """Short hash of the checkout's HEAD (empty outside a git checkout)."""
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=root).stdout.strip()
+def git_commit(where: Path, short: bool = True) -> str | None:
+    """Hash of the commit checked out at ``where`` (a worktree may differ from this script's); None outside git."""
+    try:
+        return subprocess.run(["git", "rev-parse", *(["--short"] if short else []), "HEAD"], cwd=where,
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
 
 
 def write_record(out: Path, name: str, fields: dict, note: str, root: Path, markdown) -> dict:

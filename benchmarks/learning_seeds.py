@@ -32,6 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _child_env import child_env  # noqa: E402
+from _results import git_commit  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)
 
@@ -102,15 +103,6 @@ def _read_jsonl(path: Path) -> list[dict]:
     return rows
 
 
-def _git_commit(where: Path) -> str | None:
-    """The commit checked out where the runs ran (their worktree), which may differ from this script's."""
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-
-
 def _time_split(summaries: list[dict]) -> dict | None:
     """Seconds per stage (act, env, update, evaluate, checkpoint, log, total) summed over a seed's launches, with
     each stage's share of the total; None when no launch recorded its split."""
@@ -177,7 +169,7 @@ def summarize(name: str, runs_root: Path) -> dict:
         "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
         "all_finished": all(p["finished"] for p in per_seed.values()),
         "machine": {"platform": platform.platform(), "cores": os.cpu_count(), "torch_threads_per_seed": t["threads"]},
-        "commit": _git_commit(runs_root), "per_seed": per_seed,
+        "commit": git_commit(runs_root, short=False), "per_seed": per_seed,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
