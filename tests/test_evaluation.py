@@ -100,3 +100,20 @@ def test_the_trainer_evaluates_eval_envs_episodes_at_once(tmp_path):
     assert len(trainer.eval_env_batch) == 2
     with pytest.raises(ConfigError, match="eval_envs"):
         _trainer(tmp_path / "bad", "train.eval_envs=0")
+
+
+def test_random_acting_samples_around_the_plan_from_the_seeded_generator(tmp_path):
+    trainer = _trainer(tmp_path)
+    seeds, planner, policy = trainer.evaluation_seeds()[:2], trainer.agent.planner, trainer.agent.policy
+    env = trainer.env_fn(seed=0)
+    mean, first, second = [], [], []
+    evaluate_episodes(env, policy, seeds, planner, rollouts=mean)
+    torch.manual_seed(3)
+    evaluate_episodes(env, policy, seeds, planner, rollouts=first, acting="random")
+    torch.manual_seed(4)
+    evaluate_episodes(env, policy, seeds, planner, rollouts=second, acting="random")
+    assert all(_steps_equal(a, b) for a, b in zip(first, second))  # the noise is the evaluation's, not global
+    assert not torch.equal(mean[0]["action"][0], first[0]["action"][0])
+    assert planner.generator is None
+    with pytest.raises(ValueError, match="acting must be one of"):
+        evaluate_episodes(env, policy, seeds, planner, acting="greedy")

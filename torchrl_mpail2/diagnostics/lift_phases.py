@@ -16,7 +16,9 @@ closing::
     python -m torchrl_mpail2.diagnostics lift_phases RUN/checkpoints/episode_000300 [...] --episodes 20 --out F.json
 
 ``--planner planner.num_candidates=512 ...`` plays the same episodes with another planner than the run trained with
-(the networks unchanged): does a larger planner at evaluation time lift more cubes?
+(the networks unchanged): does a larger planner at evaluation time lift more cubes? ``--acting random`` plays
+them with the action sampled around the plan's mean as in training (the evaluation's noise generator, seeded per
+episode) instead of the mean: does a run that lifts in training but not in evaluation lift when it explores?
 """
 from __future__ import annotations
 
@@ -85,9 +87,11 @@ def use_planner_settings(agent, overrides) -> None:
         agent.planner.cfg = apply_overrides(ExperimentConfig.from_dict(agent.run_config), list(overrides)).planner
 
 
-def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list[str] = ()) -> dict:
+def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list[str] = (),
+                        acting: str = "deterministic") -> dict:
     """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner (changed by
-    ``planner_overrides``, ``planner.FIELD=VALUE`` strings) -> phases."""
+    ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
+    -> phases."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.envs import make_env
     from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds
@@ -102,11 +106,11 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
     rollouts: list = []
     evaluate_episodes(env, agent.policy, evaluation_seeds(train["eval_seed"], episodes), agent.planner,
-                      rollouts=rollouts)
+                      rollouts=rollouts, acting=acting)
     env.close()
     per_episode = [lift_phases(rollout) for rollout in rollouts]
     return {"checkpoint": str(path), "episodes": episodes, "planner_overrides": list(planner_overrides),
-            "phases": summarize_phases(per_episode),
+            "acting": acting, "phases": summarize_phases(per_episode),
             "per_episode": per_episode}
 
 
@@ -119,12 +123,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--planner", nargs="+", default=[], metavar="planner.FIELD=VALUE",
                         help="play with these planner settings instead of the run's (e.g. planner.num_candidates=512)")
+    parser.add_argument("--acting", choices=["deterministic", "random"], default="deterministic",
+                        help="the plan's mean (the evaluation's default) or the action sampled around it as in training")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     results = []
     print(f"{'checkpoint':60s} " + " ".join(f"{p:>7s}" for p in PHASES))
     for path in args.checkpoints:
-        result = evaluate_checkpoint(path, args.episodes, args.planner)
+        result = evaluate_checkpoint(path, args.episodes, args.planner, args.acting)
         results.append(result)
         print(f"{path[-60:]:60s} " + " ".join(f"{result['phases'][p]:7.2f}" for p in PHASES), flush=True)
     if args.out:

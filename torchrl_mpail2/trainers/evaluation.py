@@ -43,8 +43,9 @@ def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
 
 @torch.no_grad()
 def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, videos: list | None = None,
-                      video_episodes: int = 0, rollouts: list | None = None) -> list[dict[str, float]]:
-    """Plays one deterministic episode per seed with ``actor``; returns each :func:`episode_outcome`.
+                      video_episodes: int = 0, rollouts: list | None = None,
+                      acting: str = "deterministic") -> list[dict[str, float]]:
+    """Plays one episode per seed with ``actor`` (deterministic by default); returns each :func:`episode_outcome`.
 
     Args:
         env (EnvBase): the evaluation environment (batch size ``[]``).
@@ -57,9 +58,12 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
         videos (list, optional): receives the frames ``[T + 1, H, W, 3]`` uint8 (``env.render()`` after the reset
             and after each step) of the first ``video_episodes`` episodes.
         rollouts (list, optional): receives each episode's rollout tensordict ``[T]``.
+        acting (str): ``"deterministic"`` (the plan's mean, the evaluation of every recorded result) or ``"random"``
+            (the action sampled around it as in training, the noise still drawn from the per-episode seeded
+            generator).
     """
     outcomes = []
-    with _evaluation_planner(planner) as start_episode:
+    with _evaluation_planner(planner, acting) as start_episode:
         for seed in seeds:
             env.set_seed(seed)
             start_episode(seed)
@@ -81,7 +85,7 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
 @torch.no_grad()
 def evaluate_episodes_lockstep(envs: Sequence[EnvBase], actor, seeds: list[int], planner=None, *,
                                videos: list | None = None, video_episodes: int = 0,
-                               rollouts: list | None = None) -> list[dict[str, float]]:
+                               rollouts: list | None = None, acting: str = "deterministic") -> list[dict[str, float]]:
     """:func:`evaluate_episodes` played ``len(envs)`` episodes at a time, in lockstep.
 
     Episode ``i`` still starts from seed ``seeds[i]``'s initial state (each env of a batch is seeded like the one env
@@ -94,12 +98,12 @@ def evaluate_episodes_lockstep(envs: Sequence[EnvBase], actor, seeds: list[int],
 
     Args:
         envs (sequence of EnvBase): the evaluation environments (batch size ``[]`` each, on one device).
-        actor, seeds, planner, videos, video_episodes, rollouts: as in :func:`evaluate_episodes`.
+        actor, seeds, planner, videos, video_episodes, rollouts, acting: as in :func:`evaluate_episodes`.
     """
     if not envs:
         raise ValueError("evaluate_episodes_lockstep needs at least one environment")
     outcomes = []
-    with _evaluation_planner(planner) as start_episode:
+    with _evaluation_planner(planner, acting) as start_episode:
         for first in range(0, len(seeds), len(envs)):
             batch = list(zip(envs, seeds[first:first + len(envs)]))
             current = []
@@ -135,10 +139,16 @@ def evaluate_episodes_lockstep(envs: Sequence[EnvBase], actor, seeds: list[int],
     return outcomes
 
 
+#: Evaluation acting modes -> torchrl exploration types.
+ACTING = {"deterministic": ExplorationType.DETERMINISTIC, "random": ExplorationType.RANDOM}
+
+
 @contextlib.contextmanager
-def _evaluation_planner(planner):
-    """Deterministic acting; yields ``start_episode(seed)``, which clears the planner's warm start and seeds its
-    noise. The planner's warm start and generator are restored afterwards."""
+def _evaluation_planner(planner, acting: str = "deterministic"):
+    """Acting as ``acting`` says (:data:`ACTING`); yields ``start_episode(seed)``, which clears the planner's warm
+    start and seeds its noise. The planner's warm start and generator are restored afterwards."""
+    if acting not in ACTING:
+        raise ValueError(f"acting must be one of {sorted(ACTING)}, got {acting!r}")
     saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
     device = next(iter(planner.components.parameters())).device if planner is not None else None
 
@@ -148,7 +158,7 @@ def _evaluation_planner(planner):
             planner.generator = torch.Generator(device=device).manual_seed(seed)
 
     try:
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
+        with set_exploration_type(ACTING[acting]):
             yield start_episode
     finally:
         if planner is not None:
