@@ -14,7 +14,10 @@ evaluations is the paper's Best (every checkpoint evaluated on the same episodes
 Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
 ``curve`` with the mean and std over seeds, ``best_success_any_step``, ``last_success_any_step``,
 ``episodes_to_50`` / ``episodes_to_80``, ``episodes``, ``wall_time_s``, ``machine``, ``commit``, per-seed detail)
-and ``NAME.png`` (mean and std bands over seeds).
+and ``NAME.png`` (mean and std bands over seeds). Beside the evaluation it reports ``training_curve``: the any-step
+success of the training episodes themselves (sampled actions, as the authors' code measures success; warm-up
+episodes of random actions left out) per window of :data:`TRAINING_WINDOW` episodes, mean over seeds, dotted in the
+plot.
 """
 from __future__ import annotations
 
@@ -35,6 +38,8 @@ from _child_env import child_env  # noqa: E402
 from _results import git_commit  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)
+#: Training episodes per point of ``training_curve``.
+TRAINING_WINDOW = 25
 
 
 def seed_dir(runs_root: Path, name: str, seed: int) -> Path:
@@ -114,6 +119,25 @@ def _time_split(summaries: list[dict]) -> dict | None:
     return {"seconds": seconds, "share": {k: v / total for k, v in seconds.items() if k != "total"} if total else {}}
 
 
+def training_success(episodes: list[dict], window: int = TRAINING_WINDOW) -> list[dict]:
+    """Any-step success of a seed's training episodes (``metrics.jsonl`` rows) per ``window`` episodes, from the
+    first episode after the random-action warm-up: ``[{episode, success_any_step, episodes}]``, ``episode`` the
+    window's last; a last window shorter than ``window`` is left out."""
+    acted = [e for e in episodes if "success_any_step" in e and not e.get("random_actions", False)]
+    return [{"episode": chunk[-1]["episode"], "episodes": window,
+             "success_any_step": statistics.fmean(float(e["success_any_step"]) for e in chunk)}
+            for chunk in (acted[i:i + window] for i in range(0, len(acted) - window + 1, window))]
+
+
+def _mean_training_curve(per_seed_curves: list[list[dict]]) -> list[dict]:
+    """Windows every seed completed, by position (the seeds' warm-ups are equally long): mean and std over seeds."""
+    points = min((len(c) for c in per_seed_curves), default=0)
+    return [{"episode": max(c[i]["episode"] for c in per_seed_curves),
+             "success_any_step_mean": statistics.fmean(c[i]["success_any_step"] for c in per_seed_curves),
+             "success_any_step_std": statistics.pstdev([c[i]["success_any_step"] for c in per_seed_curves])}
+            for i in range(points)]
+
+
 def summarize(name: str, runs_root: Path) -> dict:
     """Aggregates the seeds' evaluations into the results JSON and the curves PNG."""
     seeds = {}
@@ -151,6 +175,7 @@ def summarize(name: str, runs_root: Path) -> dict:
                     "last_eval_episode": d["evals"][-1]["episode"] if d["evals"] else None,
                     "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
                                     for e in d["evals"]],
+                    "training_success": training_success(d["episodes"]),
                     "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
                     "time_split": d["time_split_s"]}
                 for s, d in seeds.items()}
@@ -161,6 +186,7 @@ def summarize(name: str, runs_root: Path) -> dict:
         "name": name, "task": t["env"], "obs": t["obs"], "config": config, "seeds": sorted(seeds),
         "eval_episodes": t["eval_episodes"], "eval_seeds": f"{t['eval_seed']} .. {t['eval_seed'] + t['eval_episodes'] - 1}",
         "curve": curve,
+        "training_curve": _mean_training_curve([p["training_success"] for p in per_seed.values()]),
         "best_success_any_step": statistics.fmean(p["best_success_any_step"] for p in usable) if usable else None,
         "last_success_any_step": statistics.fmean(p["last_success_any_step"] for p in usable) if usable else None,
         "last_success_last_step": statistics.fmean(p["last_success_last_step"] for p in usable) if usable else None,
@@ -194,6 +220,10 @@ def plot_curves(results: dict[str, dict], out: Path, per_seed_lines: bool = Fals
         ax.fill_between(x, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)], color=color, alpha=0.2)
         ax.plot(x, [c["success_last_step_mean"] for c in r["curve"]], ls="--", color=color, alpha=0.8,
                 label=f"{name} (last step)")
+        training = r.get("training_curve") or []
+        if training:
+            ax.plot([c["episode"] for c in training], [c["success_any_step_mean"] for c in training], ls=":",
+                    color=color, alpha=0.9, label=f"{name} (training episodes, sampled actions)")
         if per_seed_lines:
             for seed, p in r["per_seed"].items():
                 ev = p["evaluations"]

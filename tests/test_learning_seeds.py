@@ -17,7 +17,7 @@ def bench(tmp_path, monkeypatch):
     return module
 
 
-def _fake_seed(root, seed, evals, finished=True, episodes=100):
+def _fake_seed(root, seed, evals, finished=True, episodes=100, successes=None):
     run = root / "demo" / f"seed{seed}"
     run.mkdir(parents=True)
     config = {"train": {"env": "robosuite/Lift", "obs": "state", "eval_episodes": 20, "eval_seed": 2_000_000,
@@ -26,8 +26,10 @@ def _fake_seed(root, seed, evals, finished=True, episodes=100):
     (run / "eval.jsonl").write_text("".join(
         json.dumps({"episode": e, "success_rate_any_step": a, "success_rate": last, "return": 0.0}) + "\n"
         for e, a, last in evals) + '{"episode": 99, "succ')  # a torn last line is ignored
-    (run / "metrics.jsonl").write_text("".join(json.dumps({"episode": i + 1, "update_ms": 10.0}) + "\n"
-                                               for i in range(episodes)))
+    rows = [{"episode": i + 1, "update_ms": 10.0} for i in range(episodes)]
+    for row, success in zip(rows, successes or []):
+        row.update(success)
+    (run / "metrics.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
     if finished:
         split = {"act": 20.0, "update": 30.0, "evaluate": 10.0, "total": 60.0}
         (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0, "time_split_s": split}))
@@ -91,3 +93,17 @@ def test_child_processes_import_the_checkout_first_and_keep_the_callers_path(ben
     assert env["OMP_NUM_THREADS"] == "1"
     monkeypatch.delenv("PYTHONPATH")
     assert bench.child_env()["PYTHONPATH"] == str(ROOT)
+
+
+def test_training_success_is_windowed_after_the_warm_up_and_averaged_over_seeds(bench, tmp_path):
+    warm = [{"success_any_step": 1.0, "random_actions": True}] * 5  # warm-up successes must not count
+    acted = lambda hits, n: [{"success_any_step": float(i < hits), "random_actions": False} for i in range(n)]
+    _fake_seed(tmp_path, 0, [(50, 0.0, 0.0)], successes=warm + acted(5, 25) + acted(25, 25) + acted(0, 10))
+    _fake_seed(tmp_path, 1, [(50, 0.0, 0.0)], successes=warm + acted(15, 25) + acted(0, 25))
+    r = bench.summarize("demo", tmp_path)
+    assert [w["episode"] for w in r["per_seed"][0]["training_success"]] == [30, 55]  # the short window is left out
+    assert [w["success_any_step"] for w in r["per_seed"][0]["training_success"]] == [0.2, 1.0]
+    assert [c["episode"] for c in r["training_curve"]] == [30, 55]
+    assert r["training_curve"][0]["success_any_step_mean"] == pytest.approx(0.4)
+    assert r["training_curve"][1]["success_any_step_mean"] == pytest.approx(0.5)
+    assert r["training_curve"][1]["success_any_step_std"] == pytest.approx(0.5)
