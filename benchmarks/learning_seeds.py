@@ -230,7 +230,8 @@ def plot_curves(results: dict[str, dict], out: Path, per_seed_lines: bool = Fals
                 ax.plot([e["episode"] for e in ev], [e["success_rate_any_step"] for e in ev], color=color, lw=0.7,
                         alpha=0.4)
     ax.set_xlabel("training episode")
-    ax.set_ylabel(f"evaluation success ({next(iter(results.values()))['eval_episodes']} fixed episodes)")
+    ax.set_ylabel(f"success (evaluation: {next(iter(results.values()))['eval_episodes']} fixed episodes;\n"
+                  f"dotted: training episodes per {TRAINING_WINDOW})", fontsize=8)
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")
