@@ -117,3 +117,13 @@ def test_random_acting_samples_around_the_plan_from_the_seeded_generator(tmp_pat
     assert planner.generator is None
     with pytest.raises(ValueError, match="acting must be one of"):
         evaluate_episodes(env, policy, seeds, planner, acting="greedy")
+
+
+def test_the_trainer_evaluates_with_the_configured_acting(tmp_path):
+    deterministic = _trainer(tmp_path / "mean").evaluate()
+    sampled = _trainer(tmp_path / "sampled", "train.eval_acting=random")
+    assert sampled.evaluate() == sampled.evaluate()  # still the same episodes each time
+    assert sampled.evaluate()["episodes"] == deterministic["episodes"] == 3
+    assert sampled.evaluate()["return"] != deterministic["return"]  # same weights (same seed), other actions
+    with pytest.raises(ConfigError, match="eval_acting"):
+        _trainer(tmp_path / "bad", "train.eval_acting=greedy")

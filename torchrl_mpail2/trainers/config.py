@@ -13,6 +13,7 @@ import torch
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS, resolve_update_precision
 from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.envs.names import OBS_MODES
+from torchrl_mpail2.trainers.evaluation import ACTING
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
     check_fields, field_kind, migrate_config_data,
@@ -66,13 +67,17 @@ class TrainConfig:
     eval_every: int = 10
     """Evaluate every this many episodes (0: never)."""
     eval_episodes: int = 20
-    """Episodes per evaluation, deterministic planner (50 for final numbers, as in the paper's real-world tables)."""
+    """Episodes per evaluation (50 for final numbers, as in the paper's real-world tables)."""
     eval_envs: int = 1
     """Evaluation episodes played at once, in lockstep, the planner acting on all of them in one batched call
     (``trainers.evaluation.evaluate_episodes_lockstep``): with 8, an evaluation took 2.7 times less time on one H200
     at the paper configuration and 1.4 times less on 2 CPU cores with ``lift_state`` (``benchmarks/eval_speed.py``).
     The initial states are the same; the planner's noise is drawn per batch, so scores compare between runs with
     the same ``eval_envs`` (1, the default, is the sequential evaluation every recorded result used)."""
+    eval_acting: str = "deterministic"
+    """How the evaluation acts (``trainers.evaluation.ACTING``): ``deterministic`` (the plan's mean; every recorded
+    result) or ``random`` (the action sampled around it as in training, the noise drawn from the evaluation's
+    per-episode seeded generator, so the episodes stay fixed)."""
     video: bool = False
     """Record the first ``video_episodes`` episodes of each evaluation to ``videos/*.mp4`` in the run folder (and to
     wandb where it is the logger); needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
@@ -132,6 +137,8 @@ class TrainConfig:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         if self.warmup_episodes >= self.total_episodes:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
+        if self.eval_acting not in ACTING:
+            raise ConfigError(f"unknown TrainConfig.eval_acting {self.eval_acting!r}; choose from {sorted(ACTING)}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
         if self.update_precision not in ("float32", "auto") and not ABLATIONS[self.ablation].world_model:

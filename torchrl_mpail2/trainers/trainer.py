@@ -154,7 +154,7 @@ class MPAIL2Trainer:
         return evaluation_seeds(t.eval_seed, episodes or t.eval_episodes)
 
     def evaluate(self, episodes: int | None = None) -> dict:
-        """Deterministic-actor episodes from a fixed set of initial states (see :mod:`.evaluation`).
+        """Episodes from a fixed set of initial states, acting as ``train.eval_acting`` says (see :mod:`.evaluation`).
 
         ``success_rate_any_step`` (success at any step of the episode, the paper's definition) is the headline
         figure; ``success_rate`` counts episodes whose last step is a success.
@@ -164,12 +164,12 @@ class MPAIL2Trainer:
         env = self.eval_env = getattr(self, "eval_env", None) or self.env_fn(seed=t.eval_seed)
         if t.eval_envs == 1:
             outcomes = evaluate_episodes(env, self.agent.policy, seeds, self.agent.planner, videos=videos,
-                                         video_episodes=t.video_episodes)
+                                         video_episodes=t.video_episodes, acting=t.eval_acting)
         else:
             envs = self.eval_env_batch = getattr(self, "eval_env_batch", None) or [env]
             envs += [self.env_fn(seed=t.eval_seed + i) for i in range(len(envs), min(t.eval_envs, len(seeds)))]
             outcomes = evaluate_episodes_lockstep(envs, self.agent.policy, seeds, self.agent.planner, videos=videos,
-                                                  video_episodes=t.video_episodes)
+                                                  video_episodes=t.video_episodes, acting=t.eval_acting)
         summary = summarize_outcomes(outcomes)
         if videos:
             summary["videos"] = [str(p) for p in write_videos(videos, self.run_dir / "videos",
