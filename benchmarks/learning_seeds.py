@@ -148,7 +148,10 @@ def summarize(name: str, runs_root: Path) -> dict:
         episodes = _read_jsonl(run_dir / "metrics.jsonl")
         summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
         parts = [json.loads(f.read_text()) for f in run_dir.glob("summary.part*.json")]
-        wall = sum(p["wall_time_s"] for p in parts) + summary.get("wall_time_s", 0.0) if summary else None
+        # the trainer counts the run's launches itself (``run_wall_time_s``, carried in its checkpoints); older
+        # summaries counted one launch, so their parts are added up (launches cut by a crash are then missing)
+        wall = (summary.get("run_wall_time_s") or sum(p["wall_time_s"] for p in parts) + summary.get("wall_time_s", 0.0)
+                if summary else None)
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
             "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary),

@@ -1,4 +1,5 @@
 """Bad input and injected faults (issue #14): each is refused with a message naming its cause, or recovered from."""
+import json
 from dataclasses import fields
 
 import pytest
@@ -283,8 +284,12 @@ def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
     with pytest.raises(ConfigError, match=r"\['model.horizon'\] cannot change"):
         MPAIL2Trainer.resume(run, {"model.horizon": 4})
     trainer = MPAIL2Trainer.resume(run, {"train.total_episodes": 3})  # typed, from Python
+    first_launch = json.loads((run / "summary.json").read_text())
     summary = trainer.train()
     assert summary["episodes"] == 3 and len(trainer.replay) == 150 and _episodes_logged(run) == [1, 2, 3]
+    # the run's wall time counts the first launch (to its final checkpoint) and the extension
+    assert summary["run_wall_time_s"] >= first_launch["wall_time_s"] + summary["wall_time_s"] - 1.0
+    assert first_launch["run_wall_time_s"] == pytest.approx(first_launch["wall_time_s"], abs=1.0)
     assert '"total_episodes": 3' in (run / "config.json").read_text()
 
 

@@ -61,6 +61,9 @@ def test_time_split_sums_the_launches_of_a_resumed_seed(bench, tmp_path):
     split = r["per_seed"][0]["time_split"]
     assert split["seconds"] == {"act": 30.0, "update": 40.0, "evaluate": 30.0, "total": 100.0}
     assert split["share"]["evaluate"] == pytest.approx(0.3) and r["wall_time_s"] == [100.0]
+    # a trainer that counts the run's launches itself is believed over the sum of the summaries it left
+    (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0, "run_wall_time_s": 130.0}))
+    assert bench.summarize("demo", tmp_path)["wall_time_s"] == [130.0]
 
 
 def test_a_seed_short_of_its_episodes_is_extended_only_when_asked(bench, tmp_path):

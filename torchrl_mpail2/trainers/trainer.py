@@ -103,6 +103,8 @@ class MPAIL2Trainer:
         self._last_written = None  # episode count of the newest checkpoints/last
         #: wall seconds of this training session by stage: act (planning), env, update, evaluate, checkpoint, log
         self.time_split: dict[str, float] = {}
+        #: wall seconds of the run's earlier launches (up to the checkpoint this one resumed) and this launch's start
+        self._earlier_wall_s, self._launch_start = 0.0, None
         (self.run_dir / "config.json").write_text(cfg.to_json())
         self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
 
@@ -184,7 +186,14 @@ class MPAIL2Trainer:
     # ---- checkpoints -----------------------------------------------------------------------------
     def state_dict(self) -> dict:
         return {**self.agent.state_dict(), "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
-                "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict()}
+                "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict(),
+                "run_wall_s": self.run_wall_s()}
+
+    def run_wall_s(self) -> float:
+        """Wall seconds the run has trained over all its launches: the earlier ones up to the checkpoint this
+        launch resumed (what a crash cut after it is not counted: it is trained again) and this one so far."""
+        running = time.perf_counter() - self._launch_start if self._launch_start is not None else 0.0
+        return self._earlier_wall_s + running
 
     def save(self, tag: str, with_replay: bool = False) -> Path:
         if tag == "last":
@@ -205,6 +214,7 @@ class MPAIL2Trainer:
         self.demo_buffer.generator.set_state(state["demo_rng"])
         ckpt.set_rng_state(state["rng"])
         self.counters.update(state["counters"])
+        self._earlier_wall_s = float(state.get("run_wall_s", 0.0))  # older checkpoints did not count it
         best = state["best_eval"]
         # older checkpoints kept the last-step success alone
         self.best_eval = tuple(best) if isinstance(best, (list, tuple)) else (-math.inf, best)
@@ -302,6 +312,7 @@ class MPAIL2Trainer:
         t = self.cfg.train
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start, evaluation, state = time.perf_counter(), None, {}
+        self._launch_start = start
         try:
             while self.counters["episodes"] < t.total_episodes:
                 if t.max_wall_s is not None and time.perf_counter() - start > t.max_wall_s:
@@ -358,6 +369,7 @@ class MPAIL2Trainer:
             self._draw_figures()
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
+                   "run_wall_time_s": self.run_wall_s(),
                    "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
                    "best_eval_success": self.best_eval[1] if self.best_eval[0] > -math.inf else None,
                    "last_eval": evaluation,
