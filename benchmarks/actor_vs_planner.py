@@ -1,6 +1,6 @@
 """Diagnostic: how good are the policy's plans by the planner's own score, next to the plans MPPI finds?
 
-    python benchmarks/actor_vs_planner.py RUN_DIR [--checkpoint last] [--steps 500]
+    python benchmarks/actor_vs_planner.py RUN_DIR [--checkpoint last] [--steps 500] [--out NAME.json]
 
 Loads a run's checkpoint, collects start states from random-action rollouts of the run's environment, and
 scores plans with :meth:`LatentMPPIPlanner.score` (the planner's return, two Q heads): the policy's mean plan
@@ -8,7 +8,7 @@ and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
 a freshly initialised policy for ``--steps`` Adam steps under three objectives and scores its mean plan again:
 ``actor`` (the package's actor loss: stochastic plans, lambda-return, entropy), ``deterministic_lambda`` (the mean
 plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Writes
-``docs/results/diagnostics/actor_vs_planner.json``.
+``docs/results/diagnostics/actor_vs_planner.json`` (``--out``: another name in that folder).
 """
 from __future__ import annotations
 
@@ -53,7 +53,10 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--rollouts", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="actor_vs_planner.json", help="file name under docs/results/diagnostics")
     args = p.parse_args()
+    if not (args.run_dir / "checkpoints" / args.checkpoint).is_dir():
+        raise SystemExit(f"no checkpoint {args.run_dir / 'checkpoints' / args.checkpoint}")
     torch.manual_seed(args.seed)
     cfg = ExperimentConfig.from_dict(json.loads((args.run_dir / "config.json").read_text()))
     cfg.train.run_dir = tempfile.mkdtemp()
@@ -96,7 +99,7 @@ def main() -> None:
         result["retrained"][name] = {"policy_mean_plan": curve[-1], "curve": curve}
         print(name, [round(c, 3) for c in curve], flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "actor_vs_planner.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / args.out).write_text(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "retrained"}, indent=2))
 
 
