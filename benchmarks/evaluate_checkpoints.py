@@ -23,7 +23,7 @@ from tqdm import tqdm
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.trainers import TrainConfig
-from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
+from torchrl_mpail2.trainers.evaluation import ACTING, evaluate_episodes, evaluation_seeds, summarize_outcomes
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
@@ -69,7 +69,7 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--name", help="also write docs/results/diary/<name>_checkpoints.json")
-    p.add_argument("--acting", choices=["deterministic", "random"], default="deterministic",
+    p.add_argument("--acting", choices=sorted(ACTING), default="deterministic",
                    help="the plan's mean (the runs' own evaluations) or the action sampled around it as in training")
     args = p.parse_args()
     if args.episodes <= 0:

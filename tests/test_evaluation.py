@@ -119,6 +119,22 @@ def test_random_acting_samples_around_the_plan_from_the_seeded_generator(tmp_pat
         evaluate_episodes(env, policy, seeds, planner, acting="greedy")
 
 
+def test_random_acting_without_a_planner_plays_the_same_episodes_and_leaves_the_global_stream(tmp_path):
+    from torchrl_mpail2.planners.policy_actor import PolicyActor
+
+    trainer = _trainer(tmp_path)
+    actor, seeds, env = PolicyActor(trainer.agent.modules), trainer.evaluation_seeds()[:2], trainer.env_fn(seed=0)
+    first, second = [], []
+    torch.manual_seed(3)
+    evaluate_episodes(env, actor, seeds, rollouts=first, acting="random")
+    after = torch.rand(1)
+    torch.manual_seed(4)
+    evaluate_episodes(env, actor, seeds, rollouts=second, acting="random")
+    assert all(_steps_equal(a, b) for a, b in zip(first, second))  # the policy's own sampling is seeded per episode
+    torch.manual_seed(3)
+    assert torch.equal(torch.rand(1), after)  # the global stream continues as if no evaluation had run
+
+
 def test_the_trainer_evaluates_with_the_configured_acting(tmp_path):
     deterministic = _trainer(tmp_path / "mean").evaluate()
     sampled = _trainer(tmp_path / "sampled", "train.eval_acting=random")

@@ -123,7 +123,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--planner", nargs="+", default=[], metavar="planner.FIELD=VALUE",
                         help="play with these planner settings instead of the run's (e.g. planner.num_candidates=512)")
-    parser.add_argument("--acting", choices=["deterministic", "random"], default="deterministic",
+    from torchrl_mpail2.trainers.evaluation import ACTING
+
+    parser.add_argument("--acting", choices=sorted(ACTING), default="deterministic",
                         help="the plan's mean (the evaluation's default) or the action sampled around it as in training")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)

@@ -146,19 +146,26 @@ ACTING = {"deterministic": ExplorationType.DETERMINISTIC, "random": ExplorationT
 @contextlib.contextmanager
 def _evaluation_planner(planner, acting: str = "deterministic"):
     """Acting as ``acting`` says (:data:`ACTING`); yields ``start_episode(seed)``, which clears the planner's warm
-    start and seeds its noise. The planner's warm start and generator are restored afterwards."""
+    start and seeds its noise. The planner's warm start and generator are restored afterwards. Acting ``random``,
+    the global generators are seeded per episode too (inside a fork, restored afterwards), so an actor that samples
+    from them (a policy without a planner) also plays the same episodes each time."""
     if acting not in ACTING:
         raise ValueError(f"acting must be one of {sorted(ACTING)}, got {acting!r}")
     saved = (planner.get_extra_state(), planner.generator) if planner is not None else None
     device = next(iter(planner.components.parameters())).device if planner is not None else None
+    sampled = acting == "random"
 
     def start_episode(seed: int) -> None:
         if planner is not None:
             planner.reset()
             planner.generator = torch.Generator(device=device).manual_seed(seed)
+        if sampled:
+            torch.manual_seed(seed)
 
+    forked = (torch.random.fork_rng(devices=list(range(torch.cuda.device_count())) if torch.cuda.is_initialized() else [])
+              if sampled else contextlib.nullcontext())
     try:
-        with set_exploration_type(ACTING[acting]):
+        with forked, set_exploration_type(ACTING[acting]):
             yield start_episode
     finally:
         if planner is not None:

@@ -375,6 +375,7 @@ class MPAIL2Trainer:
                    "last_eval": evaluation,
                    "time_split_s": {**self.time_split, "total": time.perf_counter() - start}}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        self._earlier_wall_s, self._launch_start = summary["run_wall_time_s"], None  # a later train() adds to it
         return summary
 
     def _time(self, stage: str, seconds: float) -> None:
