@@ -75,25 +75,44 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
             every, f"train.checkpoint_every={args.eval_every}", f"train.eval_episodes={args.eval_episodes}", *overrides]
 
 
+def log_tail(path: Path, lines: int = 15) -> str:
+    """The last ``lines`` lines of a seed's log (what a failed seed printed last)."""
+    if not path.exists():
+        return f"(no log at {path})"
+    return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+
+
 def run_seeds(args, overrides: list[str]) -> None:
-    pending = [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds]
-    running: list[tuple[int, subprocess.Popen]] = []
+    """Trains the seeds ``--parallel`` at a time; a progress bar (on a terminal) counts the episodes of all seeds and
+    shows each seed's latest evaluation; a seed that fails has its log's last lines printed."""
+    from tqdm import tqdm
+
+    seeds = [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds]
+    pending, running = list(seeds), []
     env = child_env(threads=1)
+    bar = tqdm(total=len(seeds) * args.episodes, desc=args.name, unit="episode", disable=None)
     while pending or running:
         while pending and len(running) < args.parallel:
             seed, run_dir = pending.pop(0)
             cmd = seed_command(run_dir, seed, args, overrides)
             if cmd is None:
-                print(f"seed {seed}: done already ({run_dir})", flush=True)
+                bar.write(f"seed {seed}: done already ({run_dir})")
                 continue
             log = open(run_dir.parent / f"seed{seed}.log", "a")
-            print(f"seed {seed}: {' '.join(cmd)}", flush=True)
+            bar.write(f"seed {seed}: {' '.join(cmd)}")
             running.append((seed, subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)))
         time.sleep(5)
+        bar.n = sum(min(_episodes_done(run_dir), args.episodes) for _, run_dir in seeds)
+        latest = {seed: _read_jsonl(run_dir / "eval.jsonl")[-1:] for seed, run_dir in seeds}
+        bar.set_postfix_str(" ".join(f"s{seed}:{e[0].get('success_rate_any_step', float('nan')):.2f}@{e[0].get('episode')}"
+                                     for seed, e in latest.items() if e))
         for seed, proc in list(running):
             if proc.poll() is not None:
-                print(f"seed {seed}: exited with {proc.returncode}", flush=True)
+                bar.write(f"seed {seed}: exited with {proc.returncode}")
+                if proc.returncode != 0:
+                    bar.write(log_tail(seed_dir(args.runs_root, args.name, seed).parent / f"seed{seed}.log"))
                 running.remove((seed, proc))
+    bar.close()
 
 
 def _read_jsonl(path: Path) -> list[dict]:

@@ -110,3 +110,26 @@ def test_training_success_is_windowed_after_the_warm_up_and_averaged_over_seeds(
     assert r["training_curve"][0]["success_any_step_mean"] == pytest.approx(0.4)
     assert r["training_curve"][1]["success_any_step_mean"] == pytest.approx(0.5)
     assert r["training_curve"][1]["success_any_step_std"] == pytest.approx(0.5)
+
+
+def test_a_failed_seeds_log_tail_is_shown(bench, tmp_path):
+    log = tmp_path / "seed0.log"
+    log.write_text("".join(f"line {i}\n" for i in range(40)) + "ConfigError: unknown field 'train.bogus'\n")
+    tail = bench.log_tail(log, lines=3)
+    assert tail.splitlines() == ["line 38", "line 39", "ConfigError: unknown field 'train.bogus'"]
+    assert "no log" in bench.log_tail(tmp_path / "missing.log")
+
+
+def test_run_seeds_reports_a_failing_seed_with_its_log(bench, tmp_path, monkeypatch, capsys):
+    import sys
+
+    def failing(run_dir, seed, args, overrides):
+        run_dir.mkdir(parents=True, exist_ok=True)
+        return [sys.executable, "-c", f"print('seed {seed} broke'); raise SystemExit(3)"]
+
+    monkeypatch.setattr(bench, "seed_command", failing)
+    monkeypatch.setattr(bench.time, "sleep", lambda s: None)
+    args = type("Args", (), {"seeds": [0, 1], "runs_root": tmp_path, "name": "demo", "episodes": 10, "parallel": 2})()
+    bench.run_seeds(args, [])
+    out = capsys.readouterr().out
+    assert "seed 0: exited with 3" in out and "seed 0 broke" in out and "seed 1 broke" in out
