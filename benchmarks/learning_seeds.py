@@ -102,15 +102,16 @@ def run_seeds(args, overrides: list[str]) -> None:
             bar.write(f"seed {seed}: {' '.join(cmd)}")
             running.append((seed, subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)))
         time.sleep(5)
-        bar.n = sum(min(_episodes_done(run_dir), args.episodes) for _, run_dir in seeds)
-        latest = {seed: _read_jsonl(run_dir / "eval.jsonl")[-1:] for seed, run_dir in seeds}
-        bar.set_postfix_str(" ".join(f"s{seed}:{e[0].get('success_rate_any_step', float('nan')):.2f}@{e[0].get('episode')}"
-                                     for seed, e in latest.items() if e))
+        if not bar.disable:  # the run folders are read only for a bar someone sees
+            bar.n = sum(min(_episodes_done(run_dir), args.episodes) for _, run_dir in seeds)
+            latest = {seed: _read_jsonl(run_dir / "eval.jsonl")[-1:] for seed, run_dir in seeds}
+            bar.set_postfix_str(" ".join(f"s{seed}:{e[0].get('success_rate_any_step', float('nan')):.2f}@{e[0].get('episode')}"
+                                         for seed, e in latest.items() if e))
         for seed, proc in list(running):
             if proc.poll() is not None:
                 bar.write(f"seed {seed}: exited with {proc.returncode}")
                 if proc.returncode != 0:
-                    bar.write(log_tail(seed_dir(args.runs_root, args.name, seed).parent / f"seed{seed}.log"))
+                    bar.write(log_tail(dict(seeds)[seed].parent / f"seed{seed}.log"))
                 running.remove((seed, proc))
     bar.close()
 
