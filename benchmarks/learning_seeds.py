@@ -4,6 +4,7 @@
         [section.field=value ...]
     python benchmarks/learning_seeds.py NAME --summarize           # rewrite the results from the run folders
     python benchmarks/learning_seeds.py --compare NAME [NAME ...] --out docs/results/learning/compare.png
+    python benchmarks/learning_seeds.py NAME --merge SOURCE [SOURCE ...]  # one result from several results' seeds
 
 Each seed trains in its own process (``--parallel`` at a time, one torch thread each) under
 ``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done, one
@@ -178,10 +179,31 @@ def summarize(name: str, runs_root: Path) -> dict:
             "time_split_s": _time_split(parts + [summary])}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
-    common = sorted(set.intersection(*[{e["episode"] for e in s["evals"]} for s in seeds.values()]))
+    per_seed = {s: {"episodes": len(d["episodes"]), "finished": d["finished"], "wall_time_s": d["wall_time_s"],
+                    "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
+                                    for e in d["evals"]],
+                    "training_success": training_success(d["episodes"]),
+                    "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
+                    "time_split": d["time_split_s"]}
+                for s, d in seeds.items()}
+    config = next(iter(seeds.values()))["config"]
+    return _write_result(name, config, per_seed, git_commit(runs_root, short=False))
+
+
+def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, extra: dict | None = None) -> dict:
+    """The results JSON and curves PNG of ``per_seed`` (each seed's ``evaluations``, ``training_success``,
+    ``episodes``, ``finished`` and ``wall_time_s``): means and std over the seeds at the episodes every seed was
+    evaluated at, each seed's Best and Last; ``extra`` adds fields."""
+    for p in per_seed.values():
+        ev = p["evaluations"]
+        p.update({"best_success_any_step": max((e["success_rate_any_step"] for e in ev), default=None),
+                  "last_success_any_step": ev[-1]["success_rate_any_step"] if ev else None,
+                  "last_success_last_step": ev[-1]["success_rate"] if ev else None,
+                  "last_eval_episode": ev[-1]["episode"] if ev else None})
+    common = sorted(set.intersection(*[{e["episode"] for e in p["evaluations"]} for p in per_seed.values()]))
     curve = []
     for episode in common:
-        rows = [next(e for e in s["evals"] if e["episode"] == episode) for s in seeds.values()]
+        rows = [next(e for e in p["evaluations"] if e["episode"] == episode) for p in per_seed.values()]
         anys = [r["success_rate_any_step"] for r in rows]
         curve.append({"episode": episode, "success_any_step_mean": statistics.fmean(anys),
                       "success_any_step_std": statistics.pstdev(anys),
@@ -191,25 +213,13 @@ def summarize(name: str, runs_root: Path) -> dict:
     def first_reaching(level: float):
         return next((c["episode"] for c in curve if c["success_any_step_mean"] >= level), None)
 
-    per_seed = {s: {"episodes": len(d["episodes"]), "finished": d["finished"], "wall_time_s": d["wall_time_s"],
-                    "best_success_any_step": max((e["success_rate_any_step"] for e in d["evals"]), default=None),
-                    "last_success_any_step": d["evals"][-1]["success_rate_any_step"] if d["evals"] else None,
-                    "last_success_last_step": d["evals"][-1]["success_rate"] if d["evals"] else None,
-                    "last_eval_episode": d["evals"][-1]["episode"] if d["evals"] else None,
-                    "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
-                                    for e in d["evals"]],
-                    "training_success": training_success(d["episodes"]),
-                    "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
-                    "time_split": d["time_split_s"]}
-                for s, d in seeds.items()}
     usable = [p for p in per_seed.values() if p["best_success_any_step"] is not None]
-    config = next(iter(seeds.values()))["config"]
     t = config["train"]
     result = {
-        "name": name, "task": t["env"], "obs": t["obs"], "config": config, "seeds": sorted(seeds),
+        "name": name, "task": t["env"], "obs": t["obs"], "config": config, "seeds": sorted(per_seed),
         "eval_episodes": t["eval_episodes"], "eval_seeds": f"{t['eval_seed']} .. {t['eval_seed'] + t['eval_episodes'] - 1}",
         "curve": curve,
-        "training_curve": _mean_training_curve([p["training_success"] for p in per_seed.values()]),
+        "training_curve": _mean_training_curve([p.get("training_success", []) for p in per_seed.values()]),
         "best_success_any_step": statistics.fmean(p["best_success_any_step"] for p in usable) if usable else None,
         "last_success_any_step": statistics.fmean(p["last_success_any_step"] for p in usable) if usable else None,
         "last_success_last_step": statistics.fmean(p["last_success_last_step"] for p in usable) if usable else None,
@@ -218,12 +228,57 @@ def summarize(name: str, runs_root: Path) -> dict:
         "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
         "all_finished": all(p["finished"] for p in per_seed.values()),
         "machine": {"platform": platform.platform(), "cores": os.cpu_count(), "torch_threads_per_seed": t["threads"]},
-        "commit": git_commit(runs_root, short=False), "per_seed": per_seed,
+        "commit": commit, "per_seed": per_seed, **(extra or {}),
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2))
     plot_curves({name: result}, RESULTS / f"{name}.png", per_seed_lines=True)
     return result
+
+
+#: Training settings that may differ between the results :func:`merge` combines (they do not change what is learnt).
+MERGE_FREE_FIELDS = ("seed", "run_dir", "max_wall_s", "total_episodes", "threads", "progress")
+
+
+def _config_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
+    """Dotted names of the fields where two resolved configurations differ (``train.seed`` and the others of
+    :data:`MERGE_FREE_FIELDS` excepted)."""
+    out = []
+    for key in sorted(set(a) | set(b)):
+        dotted = f"{prefix}{key}"
+        if prefix == "train." and key in MERGE_FREE_FIELDS:
+            continue
+        if isinstance(a.get(key), dict) and isinstance(b.get(key), dict) and not prefix:
+            out += _config_differences(a[key], b[key], f"{key}.")
+        elif a.get(key, "<absent>") != b.get(key, "<absent>"):
+            out.append(dotted)
+    return out
+
+
+def merge(name: str, sources: list[str]) -> dict:
+    """One result from the seeds of several results of the same configuration (e.g. seeds 2 and 3 run later, after
+    the first seeds' run folders were gone): refuses configurations that differ beyond
+    :data:`MERGE_FREE_FIELDS` and seeds that appear twice, naming them. ``commit`` becomes ``{seed: commit}`` when
+    the sources ran at different commits."""
+    loaded = {}
+    for source in sources:
+        path = RESULTS / f"{source}.json"
+        if not path.exists():
+            raise SystemExit(f"--merge: no results file {path}")
+        loaded[source] = json.loads(path.read_text())
+    first_name, first = next(iter(loaded.items()))
+    per_seed, commits = {}, {}
+    for source, r in loaded.items():
+        differ = _config_differences(first["config"], r["config"])
+        if differ:
+            raise SystemExit(f"--merge: {source} and {first_name} differ in {', '.join(differ)}")
+        for seed, p in r["per_seed"].items():
+            if int(seed) in per_seed:
+                raise SystemExit(f"--merge: seed {seed} is in {source} and in an earlier source")
+            per_seed[int(seed)] = p
+            commits[int(seed)] = r["commit"]
+    commit = next(iter(commits.values())) if len(set(commits.values())) == 1 else dict(sorted(commits.items()))
+    return _write_result(name, first["config"], dict(sorted(per_seed.items())), commit, {"merged_from": list(loaded)})
 
 
 def plot_curves(results: dict[str, dict], out: Path, per_seed_lines: bool = False) -> Path:
@@ -282,6 +337,8 @@ def main() -> None:
     p.add_argument("--summarize", action="store_true", help="only rewrite the results from the run folders")
     p.add_argument("--compare", nargs="+", metavar="NAME", help="plot the curves of these results together")
     p.add_argument("--out", type=Path, help="output PNG of --compare")
+    p.add_argument("--merge", nargs="+", metavar="SOURCE",
+                   help="write NAME from the seeds of these results (same configuration, different seeds)")
     args, overrides = p.parse_known_args()
     if args.compare:
         results = {n: json.loads((RESULTS / f"{n}.json").read_text()) for n in args.compare}
@@ -289,6 +346,10 @@ def main() -> None:
         return
     if not args.name:
         p.error("NAME is required")
+    if args.merge:
+        result = merge(args.name, args.merge)
+        print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
+        return
     if not args.summarize:
         run_seeds(args, overrides)
     result = summarize(args.name, args.runs_root)

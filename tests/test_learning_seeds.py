@@ -133,3 +133,41 @@ def test_run_seeds_reports_a_failing_seed_with_its_log(bench, tmp_path, monkeypa
     bench.run_seeds(args, [])
     out = capsys.readouterr().out
     assert "seed 0: exited with 3" in out and "seed 0 broke" in out and "seed 1 broke" in out
+
+
+def _result_named(bench, tmp_path, name, seeds_evals, **config_changes):
+    """Summarises fake seeds into ``RESULTS/<name>.json`` (the fake seeds' folder is always ``demo``)."""
+    root = tmp_path / name
+    for seed, evals in seeds_evals.items():
+        _fake_seed(root, seed, evals)
+        if config_changes:
+            path = root / "demo" / f"seed{seed}" / "config.json"
+            config = json.loads(path.read_text())
+            config["train"].update(config_changes)
+            path.write_text(json.dumps(config))
+    bench.summarize("demo", root)
+    (bench.RESULTS / "demo.json").rename(bench.RESULTS / f"{name}.json")
+
+
+def test_merge_combines_the_seeds_of_results_of_one_configuration(bench, tmp_path):
+    _result_named(bench, tmp_path, "first", {0: [(50, 0.2, 0.1), (100, 0.6, 0.5)], 1: [(50, 0.4, 0.3), (100, 0.8, 0.8)]})
+    _result_named(bench, tmp_path, "later", {2: [(50, 0.0, 0.0), (100, 1.0, 0.9)]}, threads=2, max_wall_s=10.0)
+    r = bench.merge("all", ["first", "later"])
+    assert r["seeds"] == [0, 1, 2] and r["merged_from"] == ["first", "later"]
+    assert r["curve"][1]["success_any_step_mean"] == pytest.approx(0.8)  # (0.6 + 0.8 + 1.0) / 3
+    assert r["curve"][0]["seeds"] == 3 and r["best_success_any_step"] == pytest.approx(0.8)
+    assert json.loads((bench.RESULTS / "all.json").read_text())["seeds"] == [0, 1, 2]
+    assert (bench.RESULTS / "all.png").exists()
+
+
+def test_merge_refuses_other_configurations_repeated_seeds_and_missing_results(bench, tmp_path):
+    _result_named(bench, tmp_path, "first", {0: [(50, 0.2, 0.1)]})
+    _result_named(bench, tmp_path, "other", {1: [(50, 0.4, 0.3)]}, eval_episodes=50)
+    _result_named(bench, tmp_path, "again", {0: [(50, 0.4, 0.3)]})
+    with pytest.raises(SystemExit, match="differ in train.eval_episodes"):
+        bench.merge("all", ["first", "other"])
+    with pytest.raises(SystemExit, match="seed 0 is in again"):
+        bench.merge("all", ["first", "again"])
+    with pytest.raises(SystemExit, match="no results file .*absent.json"):
+        bench.merge("all", ["first", "absent"])
+    assert not (bench.RESULTS / "all.json").exists()
