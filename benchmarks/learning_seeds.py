@@ -255,6 +255,14 @@ def _config_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
     return out
 
 
+def _as_read_today(config: dict) -> dict:
+    """A saved configuration as this code resumes it: fields added since it was saved take their defaults (which keep
+    the earlier behaviour), renamed ones their new names."""
+    from torchrl_mpail2.trainers.config import ExperimentConfig
+
+    return json.loads(json.dumps(ExperimentConfig.from_dict(config).to_dict()))
+
+
 def merge(name: str, sources: list[str]) -> dict:
     """One result from the seeds of several results of the same configuration (e.g. seeds 2 and 3 run later, after
     the first seeds' run folders were gone): refuses configurations that differ beyond
@@ -269,7 +277,7 @@ def merge(name: str, sources: list[str]) -> dict:
     first_name, first = next(iter(loaded.items()))
     per_seed, commits = {}, {}
     for source, r in loaded.items():
-        differ = _config_differences(first["config"], r["config"])
+        differ = _config_differences(_as_read_today(first["config"]), _as_read_today(r["config"]))
         if differ:
             raise SystemExit(f"--merge: {source} and {first_name} differ in {', '.join(differ)}")
         for seed, p in r["per_seed"].items():

@@ -151,7 +151,9 @@ def _result_named(bench, tmp_path, name, seeds_evals, **config_changes):
 
 def test_merge_combines_the_seeds_of_results_of_one_configuration(bench, tmp_path):
     _result_named(bench, tmp_path, "first", {0: [(50, 0.2, 0.1), (100, 0.6, 0.5)], 1: [(50, 0.4, 0.3), (100, 0.8, 0.8)]})
-    _result_named(bench, tmp_path, "later", {2: [(50, 0.0, 0.0), (100, 1.0, 0.9)]}, threads=2, max_wall_s=10.0)
+    # a field the earlier result's config predates counts as its default; threads and budget may differ
+    _result_named(bench, tmp_path, "later", {2: [(50, 0.0, 0.0), (100, 1.0, 0.9)]}, threads=2, max_wall_s=10.0,
+                  eval_acting="deterministic")
     r = bench.merge("all", ["first", "later"])
     assert r["seeds"] == [0, 1, 2] and r["merged_from"] == ["first", "later"]
     assert r["curve"][1]["success_any_step_mean"] == pytest.approx(0.8)  # (0.6 + 0.8 + 1.0) / 3
