@@ -159,11 +159,14 @@ def _mean_training_curve(per_seed_curves: list[list[dict]]) -> list[dict]:
             for i in range(points)]
 
 
-def summarize(name: str, runs_root: Path) -> dict:
-    """Aggregates the seeds' evaluations into the results JSON and the curves PNG."""
+def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict:
+    """Aggregates the seeds' evaluations (every seed folder under ``runs_root/name``, or the seeds ``only``) into the
+    results JSON and the curves PNG."""
     seeds = {}
     for run_dir in sorted((runs_root / name).glob("seed*")):
         if not run_dir.is_dir() or not (run_dir / "config.json").exists():
+            continue
+        if only is not None and int(run_dir.name.removeprefix("seed")) not in only:
             continue
         evals = [e for e in _read_jsonl(run_dir / "eval.jsonl") if "success_rate_any_step" in e]
         episodes = _read_jsonl(run_dir / "metrics.jsonl")
@@ -179,6 +182,9 @@ def summarize(name: str, runs_root: Path) -> dict:
             "time_split_s": _time_split(parts + [summary])}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
+    missing = sorted(set(only or ()) - set(seeds))
+    if missing:
+        raise SystemExit(f"no run of seed(s) {missing} under {runs_root / name}")
     per_seed = {s: {"episodes": len(d["episodes"]), "finished": d["finished"], "wall_time_s": d["wall_time_s"],
                     "evaluations": [{k: e[k] for k in ("episode", "success_rate_any_step", "success_rate", "return")}
                                     for e in d["evals"]],
@@ -333,7 +339,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", nargs="?")
     p.add_argument("--preset", default="lift_state")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--seeds", type=int, nargs="+",
+                   help="seeds to train (default 0 1); with --summarize, the seeds to summarise (default: every seed folder)")
     p.add_argument("--episodes", type=int, default=300)
     p.add_argument("--budget-min", type=float, default=100.0, help="wall-clock budget of each seed (per launch)")
     p.add_argument("--extend-min", type=float, default=0.0,
@@ -359,8 +366,9 @@ def main() -> None:
         print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
         return
     if not args.summarize:
+        args.seeds = args.seeds or [0, 1]
         run_seeds(args, overrides)
-    result = summarize(args.name, args.runs_root)
+    result = summarize(args.name, args.runs_root, args.seeds)
     print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
 
 

@@ -173,3 +173,14 @@ def test_merge_refuses_other_configurations_repeated_seeds_and_missing_results(b
     with pytest.raises(SystemExit, match="no results file .*absent.json"):
         bench.merge("all", ["first", "absent"])
     assert not (bench.RESULTS / "all.json").exists()
+
+
+def test_summarize_can_leave_out_a_seed_that_has_not_evaluated_yet(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2), (100, 0.9, 0.6)])
+    _fake_seed(tmp_path, 1, [(50, 0.6, 0.4), (100, 0.5, 0.5)])
+    _fake_seed(tmp_path, 2, [], finished=False, episodes=3)
+    assert bench.summarize("demo", tmp_path)["curve"] == []  # no episode every seed was evaluated at
+    r = bench.summarize("demo", tmp_path, only=[0, 1])
+    assert r["seeds"] == [0, 1] and [c["episode"] for c in r["curve"]] == [50, 100]
+    with pytest.raises(SystemExit, match=r"seed\(s\) \[5\]"):
+        bench.summarize("demo", tmp_path, only=[0, 5])
