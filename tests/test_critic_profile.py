@@ -4,6 +4,7 @@ import torch
 from tensordict import TensorDict
 
 from conftest import QUIET_RUN
+from torchrl_mpail2.data import demos_from_arrays, save_demos
 from torchrl_mpail2.diagnostics.critic_profile import critic_along_episodes, main, profile_checkpoint
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
@@ -61,3 +62,6 @@ def test_a_checkpoint_is_profiled_on_demonstrations_and_foreign_ones_are_named(t
     assert out.exists()
     with pytest.raises(Exception, match="nothere"):
         profile_checkpoint(ckpt, tmp_path / "nothere")
+    foreign = save_demos(demos_from_arrays([torch.zeros(4, 2)], key="elsewhere"), tmp_path / "foreign")
+    with pytest.raises(KeyError, match="lack the run's observation key"):
+        profile_checkpoint(ckpt, foreign)
