@@ -205,8 +205,9 @@ def markdown(results: dict, meta: dict) -> str:
             useful = entry["gflop"] if not name.startswith("torchrl") else None
             rate = f"{useful / ms * 1000:.0f}" if useful else "-"
             share = f"{100 * useful / ms * 1000 / ceiling:.0f}%" if useful else "-"
-            lines.append(f"| {name} | {ms:.0f} | {ms / envs:.0f} | {times['torchrl TD(lambda)'] / ms:.1f}x | "
-                         f"{times['torchrl terminal'] / ms:.1f}x | {rate} | {share} |")
+            against = " | ".join(f"{times[ref] / ms:.1f}x" if ref in times else "-"  # a reference left out by --skip
+                                 for ref in ("torchrl TD(lambda)", "torchrl terminal"))
+            lines.append(f"| {name} | {ms:.0f} | {ms / envs:.0f} | {against} | {rate} | {share} |")
         if "batching" in entry:
             lines += ["", "Batched planning, time for 8 environments over time for one: " +
                       ", ".join(f"{n} {r:.1f}x" for n, r in entry["batching"].items())]
