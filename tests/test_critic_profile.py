@@ -58,8 +58,8 @@ def test_a_checkpoint_is_profiled_on_demonstrations_and_foreign_ones_are_named(t
     assert all(torch.isfinite(torch.tensor(r["critic_mean"])) for r in result["profile"])
     assert "eef_to_cube_m" not in result["profile"][0]  # the point mass has no cube
     out = tmp_path / "profile.json"
-    main([str(ckpt), "--demos", str(demos), "--out", str(out)])
-    assert out.exists()
+    main([str(ckpt), "--demos", str(demos), "--out", str(out), "--plot", str(tmp_path / "profile.png")])
+    assert out.exists() and (tmp_path / "profile.png").stat().st_size > 0
     with pytest.raises(Exception, match="nothere"):
         profile_checkpoint(ckpt, tmp_path / "nothere")
     foreign = save_demos(demos_from_arrays([torch.zeros(4, 2)], key="elsewhere"), tmp_path / "foreign")

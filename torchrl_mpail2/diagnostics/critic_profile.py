@@ -1,7 +1,8 @@
 r"""Does the learned reward rank progress along an expert's path? The raw critic :math:`r_\theta(z_t, z_{t+1})` of a
 checkpoint along demonstration episodes, averaged per window of steps.
 
-    python -m torchrl_mpail2.diagnostics critic_profile CKPT [CKPT ...] --demos DIR [--window 5] [--out FILE.json]
+    python -m torchrl_mpail2.diagnostics critic_profile CKPT [CKPT ...] --demos DIR [--window 5] [--out FILE.json] \
+        [--plot FILE.png]
 
 Demonstrations the run did not train on (another seed's scripted demos, say) show whether the reward generalises:
 a critic that rises step by step along the held-out path rewards the task's progress; one that is flat over a phase
@@ -77,6 +78,35 @@ def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> 
                                                                                       episodes, window)}
 
 
+def plot_profiles(results: list[dict], out: str | Path) -> Path:
+    """One line per checkpoint (critic mean against the window's first step), the end-effector-to-cube distance of
+    the demonstrations dotted on a second axis where it was measured."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, result in enumerate(results):
+        rows = result["profile"]
+        ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="o", color=f"C{i}",
+                label=Path(result["checkpoint"]).parent.parent.name + "/" + Path(result["checkpoint"]).name)
+    ax.set_xlabel(f"demonstration step (windows of {results[0]['window']})")
+    ax.set_ylabel("raw critic r(z, z') (mean over episodes)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+    rows = results[0]["profile"]
+    if "eef_to_cube_m" in rows[0]:
+        twin = ax.twinx()
+        twin.plot([r["step"] for r in rows], [100 * r["eef_to_cube_m"] for r in rows], ls=":", color="gray")
+        twin.set_ylabel("end-effector to cube (cm, dotted)", color="gray")
+    ax.set_title(f"critic along {Path(results[0]['demos']).name}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return Path(out)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics critic_profile",
                                      description=__doc__.splitlines()[0])
@@ -84,6 +114,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--demos", required=True, help="a demonstration folder (e.g. another seed's scripted demos)")
     parser.add_argument("--window", type=int, default=5, help="steps per row")
     parser.add_argument("--out", help="write the results to this JSON file")
+    parser.add_argument("--plot", help="draw the profiles to this PNG file")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -98,3 +129,5 @@ def main(argv: list[str] | None = None) -> None:
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
+    if args.plot:
+        print(f"wrote {plot_profiles(results, args.plot)}")
