@@ -340,7 +340,8 @@ def main() -> None:
     p.add_argument("name", nargs="?")
     p.add_argument("--preset", default="lift_state")
     p.add_argument("--seeds", type=int, nargs="+",
-                   help="seeds to train (default 0 1); with --summarize, the seeds to summarise (default: every seed folder)")
+                   help="seeds to train (default 0 1; the summary then covers every seed folder of NAME); with "
+                        "--summarize, the seeds to summarise (default: every seed folder)")
     p.add_argument("--episodes", type=int, default=300)
     p.add_argument("--budget-min", type=float, default=100.0, help="wall-clock budget of each seed (per launch)")
     p.add_argument("--extend-min", type=float, default=0.0,
@@ -365,10 +366,12 @@ def main() -> None:
         result = merge(args.name, args.merge)
         print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
         return
-    if not args.summarize:
+    if args.summarize:  # only the seeds asked for, if any
+        result = summarize(args.name, args.runs_root, args.seeds)
+    else:  # every seed of the name, those trained now and any trained before
         args.seeds = args.seeds or [0, 1]
         run_seeds(args, overrides)
-    result = summarize(args.name, args.runs_root, args.seeds)
+        result = summarize(args.name, args.runs_root)
     print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
 
 

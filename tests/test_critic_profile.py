@@ -29,12 +29,14 @@ def _episode(length, offset=0.0):
 
 
 def test_the_profile_averages_each_window_over_episodes():
-    rows = critic_along_episodes(_StepEncoder(), _NextStepCritic(), [_episode(10), _episode(6, offset=2.0)], window=5)
+    rows = critic_along_episodes(_StepEncoder(), _NextStepCritic(), [_episode(10), _episode(6, offset=2.0)], window=5,
+                                 eef_to_cube=slice(7, 10))
     assert [r["step"] for r in rows] == [0, 5]  # pairs at steps 0-9 and 0-5
     assert [r["pairs"] for r in rows] == [10, 6]
     # window 0-4: z' = 1..5 in the first episode, 3..7 in the second -> mean 10 * 4
     assert rows[0]["critic_mean"] == pytest.approx(40.0)
     assert rows[0]["eef_to_cube_m"] == pytest.approx(0.3 - 0.01 * 2)
+    assert "eef_to_cube_m" not in critic_along_episodes(_StepEncoder(), _NextStepCritic(), [_episode(3)], window=5)[0]
 
 
 def test_bad_windows_and_episodes_are_refused():

@@ -6,8 +6,8 @@ checkpoint along demonstration episodes, averaged per window of steps.
 
 Demonstrations the run did not train on (another seed's scripted demos, say) show whether the reward generalises:
 a critic that rises step by step along the held-out path rewards the task's progress; one that is flat over a phase
-(the approach, the grasp) gives the planner nothing to climb there. Vector observation keys named ``"object"`` with
-the end-effector-to-cube offset in its last three entries (robosuite Lift and Push) add that distance per window.
+(the approach, the grasp) gives the planner nothing to climb there. On robosuite Lift and Push the rows add the
+demonstrations' end-effector-to-cube distance.
 """
 from __future__ import annotations
 
@@ -19,10 +19,11 @@ import torch
 from tensordict import TensorDict
 
 
-def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], window: int = 5) -> list[dict]:
+def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], window: int = 5,
+                          eef_to_cube: slice | None = None) -> list[dict]:
     """Raw critic of consecutive observation pairs of ``episodes`` (each ``[T_i + 1]`` observations) per ``window``
     steps: ``[{step, critic_mean, critic_std, pairs}]`` (``step`` the window's first), plus ``eef_to_cube_m`` (mean
-    end-effector-to-cube distance) where the episodes have an ``"object"`` key of 10 or 11 entries.
+    end-effector-to-cube distance) when ``eef_to_cube`` says where ``"object"`` holds that offset.
 
     Args:
         encoder: has ``encode(observations) -> z`` (``MPAIL2Modules.encoder``).
@@ -40,9 +41,8 @@ def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], windo
             z = encoder.encode(episode)
             scores.append(reward_net.critic(z[:-1], z[1:]).squeeze(-1).float())
             steps.append(torch.arange(episode.shape[0] - 1))
-            obj = episode.get("object", None)
-            if obj is not None and obj.shape[-1] in (10, 11):
-                distances.append(obj[:-1, 7:10].norm(dim=-1).float())
+            if eef_to_cube is not None:
+                distances.append(episode["object"][:-1, eef_to_cube].norm(dim=-1).float())
     if not scores:
         raise ValueError("every episode has fewer than two observations: no pairs to score")
     score, step = torch.cat(scores), torch.cat(steps)
@@ -72,10 +72,13 @@ def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> 
         raise KeyError(f"{demos}: the demonstrations lack the run's observation key(s) {missing} "
                        f"(they have {demonstrations.observation_keys})")
     episodes = [demonstrations.episode(i).select(*keys) for i in range(demonstrations.num_episodes)]
+    eef_to_cube = None
+    if agent.run_config["train"]["env"] in ("robosuite/Lift", "robosuite/Push") and "object" in keys:
+        from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE as eef_to_cube
     net = agent.modules.reward.module
-    return {"checkpoint": str(path), "demos": str(demos), "window": window,
-            "reward_scale": float(net.reward_scale), "profile": critic_along_episodes(agent.modules.encoder, net,
-                                                                                      episodes, window)}
+    profile = critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube)
+    return {"checkpoint": str(path), "demos": str(demos), "window": window, "reward_scale": float(net.reward_scale),
+            "profile": profile}
 
 
 def plot_profiles(results: list[dict], out: str | Path) -> Path:

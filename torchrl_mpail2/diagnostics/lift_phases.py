@@ -47,8 +47,10 @@ def lift_phases(rollout: TensorDictBase) -> dict:
         if ("next", key) not in rollout.keys(include_nested=True):
             raise ValueError(f"lift_phases reads ('next', {key!r}) of a robosuite/Lift rollout in 'state' mode; the "
                            f"rollout has {sorted(str(k) for k in rollout.keys(include_nested=True, leaves_only=True))}")
+    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+
     proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
-    distance = np.linalg.norm(obj[:, 7:10], axis=-1)
+    distance = np.linalg.norm(obj[:, OBJECT_EEF_TO_CUBE], axis=-1)
     opening = proprio[:, 3] - proprio[:, 4]
     rise = obj[:, 2] - float(rollout["object"][0, 2])
     near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M

@@ -56,6 +56,8 @@ WRIST_CAMERA = "robot0_eye_in_hand"
 #: Side of the frames of :meth:`RobosuiteEnv.render` (evaluation videos), pixels.
 RENDER_SIZE = 256
 PROPRIO_DIM = 26
+#: Where ``"object"`` holds the end effector's position minus the cube's (Lift and Push).
+OBJECT_EEF_TO_CUBE = slice(7, 10)
 
 # mujoco warnings that mean the physics or the commanded torques went non-finite or diverged.
 _INSTABILITY_WARNINGS = {
