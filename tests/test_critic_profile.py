@@ -59,6 +59,7 @@ def test_a_checkpoint_is_profiled_on_demonstrations_and_foreign_ones_are_named(t
     assert result["profile"] and sum(r["pairs"] for r in result["profile"]) > 0
     assert all(torch.isfinite(torch.tensor(r["critic_mean"])) for r in result["profile"])
     assert "eef_to_cube_m" not in result["profile"][0]  # the point mass has no cube
+    assert all(torch.isfinite(torch.tensor(r["q_mean"])) for r in result["profile"])
     out = tmp_path / "profile.json"
     main([str(ckpt), "--demos", str(demos), "--out", str(out), "--plot", str(tmp_path / "profile.png")])
     assert out.exists() and (tmp_path / "profile.png").stat().st_size > 0

@@ -1,5 +1,6 @@
 r"""Does the learned reward rank progress along an expert's path? The raw critic :math:`r_\theta(z_t, z_{t+1})` of a
-checkpoint along demonstration episodes, averaged per window of steps.
+checkpoint along demonstration episodes, averaged per window of steps, with its value :math:`Q_\zeta(z_t, a_t)` of the
+policy's mean first action there.
 
     python -m torchrl_mpail2.diagnostics critic_profile CKPT [CKPT ...] --demos DIR [--window 5] [--out FILE.json] \
         [--plot FILE.png]
@@ -20,20 +21,22 @@ from tensordict import TensorDict
 
 
 def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], window: int = 5,
-                          eef_to_cube: slice | None = None) -> list[dict]:
+                          eef_to_cube: slice | None = None, q_net=None, policy_net=None) -> list[dict]:
     """Raw critic of consecutive observation pairs of ``episodes`` (each ``[T_i + 1]`` observations) per ``window``
     steps: ``[{step, critic_mean, critic_std, pairs}]`` (``step`` the window's first), plus ``eef_to_cube_m`` (mean
-    end-effector-to-cube distance) when ``eef_to_cube`` says where ``"object"`` holds that offset.
+    end-effector-to-cube distance) when ``eef_to_cube`` says where ``"object"`` holds that offset, and ``q_mean``
+    (the value of the policy's mean first action, mean over all heads) when ``q_net`` and ``policy_net`` are given.
 
     Args:
         encoder: has ``encode(observations) -> z`` (``MPAIL2Modules.encoder``).
         reward_net: has ``critic(z, z_next)`` (``MPAIL2Modules.reward.module``).
+        q_net, policy_net: ``MPAIL2Modules.value.net`` and ``MPAIL2Modules.policy.net``.
     """
     if window < 1:
         raise ValueError(f"window must be >= 1, got {window}")
     if not episodes:
         raise ValueError("no episodes to profile")
-    scores, steps, distances = [], [], []
+    scores, steps, distances, values = [], [], [], []
     with torch.no_grad():
         for episode in episodes:
             if episode.shape[0] < 2:
@@ -43,10 +46,14 @@ def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], windo
             steps.append(torch.arange(episode.shape[0] - 1))
             if eef_to_cube is not None:
                 distances.append(episode["object"][:-1, eef_to_cube].norm(dim=-1).float())
+            if q_net is not None and policy_net is not None:
+                plan, _ = policy_net(z[:-1], deterministic=True)
+                values.append(q_net(z[:-1], plan[..., 0, :].to(z.dtype)).mean(0).squeeze(-1).float())
     if not scores:
         raise ValueError("every episode has fewer than two observations: no pairs to score")
     score, step = torch.cat(scores), torch.cat(steps)
     distance = torch.cat(distances) if len(distances) == len(scores) else None
+    value = torch.cat(values) if len(values) == len(scores) else None
     rows = []
     for start in range(0, int(step.max()) + 1, window):
         mask = (step >= start) & (step < start + window)
@@ -54,6 +61,8 @@ def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], windo
                "critic_std": score[mask].std().item() if mask.sum() > 1 else 0.0, "pairs": int(mask.sum())}
         if distance is not None:
             row["eef_to_cube_m"] = distance[mask].mean().item()
+        if value is not None:
+            row["q_mean"] = value[mask].mean().item()
         rows.append(row)
     return rows
 
@@ -76,7 +85,8 @@ def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> 
     if agent.run_config["train"]["env"] in ("robosuite/Lift", "robosuite/Push") and "object" in keys:
         from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE as eef_to_cube
     net = agent.modules.reward.module
-    profile = critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube)
+    profile = critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube,
+                                    agent.modules.value.net, agent.modules.policy.net)
     return {"checkpoint": str(path), "demos": str(demos), "window": window, "reward_scale": float(net.reward_scale),
             "profile": profile}
 
@@ -128,7 +138,8 @@ def main(argv: list[str] | None = None) -> None:
         print(path)
         for row in result["profile"]:
             extra = f"  eef-cube {100 * row['eef_to_cube_m']:5.1f} cm" if "eef_to_cube_m" in row else ""
-            print(f"  steps {row['step']:3d}+  critic {row['critic_mean']:9.1f} ± {row['critic_std']:7.1f}{extra}")
+            print(f"  steps {row['step']:3d}+  critic {row['critic_mean']:9.1f} ± {row['critic_std']:7.1f}  "
+                  f"Q {row['q_mean']:8.2f}{extra}")
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
