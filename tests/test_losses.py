@@ -316,3 +316,33 @@ def test_value_head_reduce_mean_is_the_sum_over_the_ensemble_size():
     torch.testing.assert_close(b * m.value.net.num_q, a)
     with pytest.raises(Exception, match="value_head_reduce"):
         LossConfig(value_head_reduce="max")
+
+
+@pytest.mark.parametrize("which", ["value", "actor"])
+def test_expert_start_latents_enter_the_value_and_actor_losses_only_when_asked(which):
+    m = tiny_modules()
+    cls = LambdaReturnValueLoss if which == "value" else MultiStepActorLoss
+    td = replay_batch()
+    poisoned = td.clone()
+    poisoned["expert"] = poisoned["expert"].apply(lambda x: torch.full_like(x, float("nan")))
+    key = f"loss_{which}"
+    paper = cls(m.encoder, m.dynamics, m.reward, m.value, m.policy)
+    assert torch.isfinite(paper(poisoned)[key])  # the paper's form never reads the expert's observations
+    mixed = cls(m.encoder, m.dynamics, m.reward, m.value, m.policy, expert_start_fraction=0.5)
+    assert torch.isnan(mixed(poisoned)[key])  # with the switch it does
+    torch.manual_seed(0)
+    with_experts = mixed(td)[key]
+    torch.manual_seed(0)
+    assert torch.isfinite(with_experts) and with_experts != paper(td)[key]
+    if which == "value":
+        with_experts.backward()
+        assert _has_grad(m.value) and _no_grad(m.dynamics) and _no_grad(m.policy) and _no_grad(m.encoder)
+
+
+def test_expert_start_fraction_is_checked_and_refused_without_a_world_model():
+    from torchrl_mpail2.objectives import DACLoss
+    with pytest.raises(ConfigError, match="expert_start_fraction"):
+        LossConfig(expert_start_fraction=1.5)
+    with pytest.raises(ValueError, match="expert_start_fraction"):
+        DACLoss(tiny_modules(horizon=1), LossConfig(expert_start_fraction=0.5))
+    assert MPAIL2Loss(tiny_modules(), LossConfig(expert_start_fraction=0.25)).value_loss.expert_start_fraction == 0.25

@@ -144,6 +144,15 @@ class MPAIL2LossBase(LossModule):
         """Stop-gradient latents ``(z, z')`` of the expert pairs under the ``expert`` prefix."""
         return self._pair_latents(td, self._prefix(self.tensor_keys.expert))
 
+    def expert_starts(self, td: TensorDictBase, fraction: float) -> Tensor | None:
+        """Stop-gradient latents ``[k, Z]`` of the first ``round(fraction * n)`` of the batch's ``n`` expert
+        observations (at least one when ``fraction > 0``), or None when ``fraction`` is 0."""
+        if fraction <= 0:
+            return None
+        z = self.expert_latents(td)[0]
+        z = z.reshape(-1, z.shape[-1])
+        return z[: max(1, round(fraction * z.shape[0]))]
+
     def reduce(self, x: Tensor) -> Tensor:
         if self.reduction == "mean":
             return x.mean()
