@@ -147,7 +147,9 @@ class MPAIL2LossBase(LossModule):
     def expert_starts(self, td: TensorDictBase, fraction: float) -> Tensor | None:
         """Stop-gradient latents ``[k, Z]`` of the first ``round(fraction * n)`` of the batch's ``n`` expert
         observations (at least one when ``fraction > 0``), or None when ``fraction`` is 0."""
-        if fraction <= 0:
+        if not 0.0 <= fraction <= 1.0:
+            raise ValueError(f"expert_start_fraction must lie in [0, 1], got {fraction}")
+        if fraction == 0:
             return None
         z = self.expert_latents(td)[0]
         z = z.reshape(-1, z.shape[-1])
