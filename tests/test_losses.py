@@ -346,3 +346,19 @@ def test_expert_start_fraction_is_checked_and_refused_without_a_world_model():
     with pytest.raises(ValueError, match="expert_start_fraction"):
         DACLoss(tiny_modules(horizon=1), LossConfig(expert_start_fraction=0.5))
     assert MPAIL2Loss(tiny_modules(), LossConfig(expert_start_fraction=0.25)).value_loss.expert_start_fraction == 0.25
+
+
+def test_with_expert_starts_the_composite_encodes_the_expert_observations_once(monkeypatch):
+    from torchrl_mpail2.objectives._base import MPAIL2LossBase
+    loss = MPAIL2Loss(tiny_modules(), LossConfig(expert_start_fraction=0.5))
+    calls = []
+    original = MPAIL2LossBase.expert_latents
+
+    def counted(self, td):
+        calls.append(type(self).__name__)
+        return original(self, td)
+
+    monkeypatch.setattr(MPAIL2LossBase, "expert_latents", counted)  # the one method every stage would call
+    out = loss(replay_batch())
+    assert torch.isfinite(out["loss_value"]) and torch.isfinite(out["loss_actor"])
+    assert calls == ["MPAIL2Loss"]  # once, by the composite; not again by reward, value or actor

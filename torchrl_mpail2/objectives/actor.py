@@ -65,10 +65,10 @@ class MultiStepActorLoss(MPAIL2LossBase):
         self.q_reduce = q_reduce
         self.expert_start_fraction = float(expert_start_fraction)
 
-    def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
+    def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
         z = latents[0] if latents is not None else self.replay_latents(tensordict)[0]
         z = z.reshape(-1, z.shape[-1])
-        ze = self.expert_starts(tensordict, self.expert_start_fraction)
+        ze = self.expert_starts(tensordict, self.expert_start_fraction, expert_latents)
         if ze is not None:
             z = torch.cat([z, ze])
         policy = self.policy_network.net

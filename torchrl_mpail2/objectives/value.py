@@ -84,13 +84,13 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
             G = G * (~terminated.reshape(G.shape)).to(G.dtype)
         return r + self.gamma * G, r
 
-    def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
+    def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
         z, z_next = latents if latents is not None else self.replay_latents(tensordict)
         z, z_next = z.reshape(-1, z.shape[-1]), z_next.reshape(-1, z_next.shape[-1])
         action = self.require(tensordict, self.tensor_keys.action)
         action = action.reshape(-1, action.shape[-1])
         terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
-        ze = self.expert_starts(tensordict, self.expert_start_fraction)
+        ze = self.expert_starts(tensordict, self.expert_start_fraction, expert_latents)
         if ze is not None:  # imagined transitions from the expert's states, with the policy's actions
             with torch.no_grad():
                 expert_action = self.policy_network.net(ze)[0][..., 0, :].to(ze.dtype)
