@@ -21,9 +21,8 @@ import torch
 from tqdm import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.envs import make_env
-from torchrl_mpail2.trainers import TrainConfig
-from torchrl_mpail2.trainers.evaluation import ACTING, evaluate_episodes, evaluation_seeds, summarize_outcomes
+from torchrl_mpail2.trainers.evaluation import (ACTING, DEFAULT_EVAL_SEED, evaluate_episodes, evaluation_env,
+                                                evaluation_seeds, summarize_outcomes)
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
@@ -35,9 +34,9 @@ def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
 
 
 def run_env(run_dir: Path):
-    """The run's environment, built from ``run_dir/config.json`` (``train.env``, ``train.obs``, ``train.env_kwargs``)."""
+    """The run's evaluation environment, rebuilt from ``run_dir/config.json`` (:func:`evaluation_env`)."""
     train = json.loads((run_dir / "config.json").read_text())["train"]
-    return make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {})), train
+    return evaluation_env(train), train
 
 
 def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None, acting: str = "deterministic") -> dict:
@@ -47,7 +46,7 @@ def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None, actin
     if threads:
         torch.set_num_threads(threads)
     env, train = run_env(run_dir)
-    seeds = evaluation_seeds(train.get("eval_seed", TrainConfig().eval_seed), episodes)
+    seeds = evaluation_seeds(train.get("eval_seed", DEFAULT_EVAL_SEED), episodes)
     rows = []
     for episode, path in tqdm(checkpoints, desc="checkpoints"):
         agent = MPAIL2Agent.from_checkpoint(path, env)

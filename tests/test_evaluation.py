@@ -143,3 +143,28 @@ def test_the_trainer_evaluates_with_the_configured_acting(tmp_path):
     assert sampled.evaluate()["return"] != deterministic["return"]  # same weights (same seed), other actions
     with pytest.raises(ConfigError, match="eval_acting"):
         _trainer(tmp_path / "bad", "train.eval_acting=greedy")
+
+
+def test_the_rebuilt_evaluation_env_is_built_like_the_trainers_with_its_cube():
+    """Lift draws its cube size when the env is built: tools that re-evaluate a checkpoint rebuild the evaluation env
+    with the run's ``eval_seed`` (as the trainer does), not with a default seed, else they play another cube."""
+    pytest.importorskip("robosuite")
+    from torchrl_mpail2.envs.robosuite_env import robosuite_base
+    from torchrl_mpail2.trainers.evaluation import evaluation_env
+
+    def proprio_and_cube(env):
+        out = env.observation_spec["proprio"].shape, robosuite_base(env).privileged_state()["cube_half_size"].copy()
+        env.close()
+        return out
+
+    train = {"env": "robosuite/Lift", "obs": "state", "env_kwargs": {"observe_gripper_command": True},
+             "eval_seed": 2_000_000}
+    proprio, cube = proprio_and_cube(evaluation_env(train))
+    trainers_proprio, trainers_cube = proprio_and_cube(
+        make_env("robosuite/Lift", obs="state", seed=2_000_000, observe_gripper_command=True))
+    assert proprio == trainers_proprio and (cube == trainers_cube).all()
+    default_proprio, default_cube = proprio_and_cube(make_env("robosuite/Lift", obs="state", seed=0))
+    assert proprio[-1] == default_proprio[-1] + 1  # the gripper command of the run's env_kwargs
+    assert not (cube == default_cube).all()  # a default-seeded env holds another cube
+    _, old_run_cube = proprio_and_cube(evaluation_env({k: v for k, v in train.items() if k != "eval_seed"}))
+    assert (old_run_cube == trainers_cube).all()  # a train section without eval_seed: the default

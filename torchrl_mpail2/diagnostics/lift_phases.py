@@ -95,8 +95,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
     -> phases."""
     from torchrl_mpail2.agents import MPAIL2Agent
-    from torchrl_mpail2.envs import make_env
-    from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds
+    from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds
 
     _check_planner_overrides(planner_overrides)
     agent = MPAIL2Agent.from_checkpoint(path)
@@ -105,7 +104,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     if train["env"] != "robosuite/Lift" or train["obs"] != "state":
         raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' mode, this run is "
                          f"{train['env']} with obs {train['obs']!r}")
-    env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
+    env = evaluation_env(train)  # the run's own evaluation env (the same cube as its evaluations)
     rollouts: list = []
     evaluate_episodes(env, agent.policy, evaluation_seeds(train["eval_seed"], episodes), agent.planner,
                       rollouts=rollouts, acting=acting)

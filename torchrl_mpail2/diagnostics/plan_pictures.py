@@ -13,7 +13,8 @@ from tensordict import TensorDictBase
 
 from torchrl_mpail2.diagnostics.latent_probe import LatentProbe, fit_latent_probe
 from torchrl_mpail2.objectives.imagination import rollout_latents
-from torchrl_mpail2.trainers.evaluation import episode_outcome, evaluate_episodes, evaluation_seeds
+from torchrl_mpail2.trainers.evaluation import (DEFAULT_EVAL_SEED, episode_outcome, evaluate_episodes, evaluation_env,
+                                                evaluation_seeds)
 
 __all__ = ["PLANE_POSITIONS", "draw_plan_pictures", "plane_position"]
 
@@ -145,8 +146,6 @@ def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, pos
 
 def main(argv: list[str] | None = None) -> dict:
     from torchrl_mpail2.agents import MPAIL2Agent
-    from torchrl_mpail2.envs import make_env
-    from torchrl_mpail2.trainers.config import TrainConfig
 
     p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics plan_pictures", description=USAGE, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", type=Path)
@@ -159,10 +158,10 @@ def main(argv: list[str] | None = None) -> dict:
         raise SystemExit("--episodes and --panels must be >= 1")
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
     train = agent.run_config["train"]
-    env = make_env(train["env"], obs=train["obs"], **(train.get("env_kwargs") or {}))
+    env = evaluation_env(train)  # the run's own evaluation env (robosuite: the same cube as its evaluations)
     key, cols = plane_position(train["env"], args.plane)
     try:
-        first_seed = train.get("eval_seed", TrainConfig.eval_seed)  # runs before the fixed evaluation lack it
+        first_seed = train.get("eval_seed", DEFAULT_EVAL_SEED)  # runs before the fixed evaluation lack it
         summary = draw_plan_pictures(agent, env, evaluation_seeds(first_seed, args.episodes),
                                      args.out or args.checkpoint / "plan_pictures", position_key=key,
                                      position_columns=cols, panels=args.panels, labels=tuple(args.plane))

@@ -13,7 +13,7 @@ import torch
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS, resolve_update_precision
 from torchrl_mpail2.data.sources import resolve_demo_source
 from torchrl_mpail2.envs.names import OBS_MODES
-from torchrl_mpail2.trainers.evaluation import ACTING
+from torchrl_mpail2.trainers.evaluation import ACTING, DEFAULT_EVAL_SEED
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
     check_fields, field_kind, migrate_config_data,
@@ -83,10 +83,12 @@ class TrainConfig:
     wandb where it is the logger); needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
     video_episodes: int = 1
     """Evaluation episodes recorded per evaluation when ``video`` is on."""
-    eval_seed: int = 2_000_000
+    eval_seed: int = DEFAULT_EVAL_SEED
     """Seed of the first evaluation episode: episode ``i`` starts from env seed ``eval_seed + i`` and draws its
     planner noise from a generator seeded the same way, so every evaluation of every run (any training seed)
-    plays the same initial states. Kept clear of the training (``seed + episode``) and demo (``seed + 1e6 + i``) seeds."""
+    plays the same initial states. Kept clear of the training (``seed + episode``) and demo (``seed + 1e6 + i``) seeds.
+    The evaluation env is also built with this seed (Lift's cube size is drawn then); tools that re-evaluate a
+    checkpoint rebuild it alike (``trainers.evaluation.evaluation_env``)."""
     checkpoint_every: int = 10
     """Write a numbered checkpoint every this many episodes (``last`` is written at every evaluation too).
     The checkpoint kept as ``best`` is the evaluation with the highest any-step success (ties: last-step success)."""

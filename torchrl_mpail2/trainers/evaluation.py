@@ -13,7 +13,7 @@ played with the same number of environments.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -23,10 +23,13 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
 
-__all__ = ["episode_outcome", "evaluate_episodes", "evaluate_episodes_lockstep", "evaluation_seeds", "summarize_outcomes"]
+__all__ = ["DEFAULT_EVAL_SEED", "episode_outcome", "evaluate_episodes", "evaluate_episodes_lockstep",
+           "evaluation_env", "evaluation_seeds", "summarize_outcomes"]
 
 #: Safety cap on an evaluation episode's length (the envs end their episodes themselves).
 MAX_EVAL_STEPS = 100_000
+#: ``train.eval_seed`` unless set: clear of the training (``seed + episode``) and demo (``seed + 1e6 + i``) seeds.
+DEFAULT_EVAL_SEED = 2_000_000
 
 
 def episode_outcome(episode: TensorDict) -> dict[str, float]:
@@ -39,6 +42,19 @@ def episode_outcome(episode: TensorDict) -> dict[str, float]:
 def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
     """Seeds of the fixed evaluation episodes: ``first_seed + i``."""
     return [first_seed + i for i in range(episodes)]
+
+
+def evaluation_env(train: Mapping) -> EnvBase:
+    """The environment a run's own evaluations play in, rebuilt from its saved ``train`` section (``env``, ``obs``,
+    ``env_kwargs``, ``eval_seed``): constructed with seed ``eval_seed``, as the trainer builds its evaluation env.
+
+    The construction seed matters beside the per-episode seeds: robosuite draws Lift's cube size once, when the env
+    is built (``hard_reset=False``), so an env built with another seed plays the same initial states with a cube up
+    to about 2 mm different, and a checkpoint re-evaluated in it can score otherwise than in its run."""
+    from torchrl_mpail2.envs import make_env
+
+    return make_env(train["env"], obs=train["obs"], seed=train.get("eval_seed", DEFAULT_EVAL_SEED),
+                    **(train.get("env_kwargs") or {}))
 
 
 @torch.no_grad()
