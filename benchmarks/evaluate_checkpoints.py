@@ -21,8 +21,8 @@ import torch
 from tqdm import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.trainers.evaluation import (ACTING, DEFAULT_EVAL_SEED, evaluate_episodes, evaluation_env,
-                                                evaluation_seeds, summarize_outcomes)
+from torchrl_mpail2.trainers.evaluation import (ACTING, evaluate_episodes, evaluation_env, evaluation_seeds,
+                                                run_eval_seed, summarize_outcomes)
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 
@@ -46,7 +46,7 @@ def evaluate_run(run_dir: Path, episodes: int, threads: int | None = None, actin
     if threads:
         torch.set_num_threads(threads)
     env, train = run_env(run_dir)
-    seeds = evaluation_seeds(train.get("eval_seed", DEFAULT_EVAL_SEED), episodes)
+    seeds = evaluation_seeds(run_eval_seed(train), episodes)
     rows = []
     for episode, path in tqdm(checkpoints, desc="checkpoints"):
         agent = MPAIL2Agent.from_checkpoint(path, env)

@@ -345,6 +345,10 @@ def test_expert_start_fraction_is_checked_and_refused_without_a_world_model():
         LossConfig(expert_start_fraction=1.5)
     with pytest.raises(ValueError, match="expert_start_fraction"):
         DACLoss(tiny_modules(horizon=1), LossConfig(expert_start_fraction=0.5))
+    m = tiny_modules()
+    for cls in (LambdaReturnValueLoss, MultiStepActorLoss):  # built directly, without a LossConfig
+        with pytest.raises(ValueError, match="expert_start_fraction must lie in"):
+            cls(m.encoder, m.dynamics, m.reward, m.value, m.policy, expert_start_fraction=-0.1)
     assert MPAIL2Loss(tiny_modules(), LossConfig(expert_start_fraction=0.25)).value_loss.expert_start_fraction == 0.25
 
 

@@ -95,7 +95,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
     -> phases."""
     from torchrl_mpail2.agents import MPAIL2Agent
-    from torchrl_mpail2.trainers.evaluation import DEFAULT_EVAL_SEED, evaluate_episodes, evaluation_env, evaluation_seeds
+    from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds, run_eval_seed
 
     _check_planner_overrides(planner_overrides)
     agent = MPAIL2Agent.from_checkpoint(path)
@@ -106,7 +106,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
                          f"{train['env']} with obs {train['obs']!r}")
     env = evaluation_env(train)  # the run's own evaluation env (the same cube as its evaluations)
     rollouts: list = []
-    evaluate_episodes(env, agent.policy, evaluation_seeds(train.get("eval_seed", DEFAULT_EVAL_SEED), episodes), agent.planner,
+    evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,
                       rollouts=rollouts, acting=acting)
     env.close()
     per_episode = [lift_phases(rollout) for rollout in rollouts]

@@ -13,8 +13,8 @@ from tensordict import TensorDictBase
 
 from torchrl_mpail2.diagnostics.latent_probe import LatentProbe, fit_latent_probe
 from torchrl_mpail2.objectives.imagination import rollout_latents
-from torchrl_mpail2.trainers.evaluation import (DEFAULT_EVAL_SEED, episode_outcome, evaluate_episodes, evaluation_env,
-                                                evaluation_seeds)
+from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episodes, evaluation_env, evaluation_seeds,
+                                                run_eval_seed)
 
 __all__ = ["PLANE_POSITIONS", "draw_plan_pictures", "plane_position"]
 
@@ -161,8 +161,7 @@ def main(argv: list[str] | None = None) -> dict:
     env = evaluation_env(train)  # the run's own evaluation env (robosuite: the same cube as its evaluations)
     key, cols = plane_position(train["env"], args.plane)
     try:
-        first_seed = train.get("eval_seed", DEFAULT_EVAL_SEED)  # runs before the fixed evaluation lack it
-        summary = draw_plan_pictures(agent, env, evaluation_seeds(first_seed, args.episodes),
+        summary = draw_plan_pictures(agent, env, evaluation_seeds(run_eval_seed(train), args.episodes),
                                      args.out or args.checkpoint / "plan_pictures", position_key=key,
                                      position_columns=cols, panels=args.panels, labels=tuple(args.plane))
     finally:

@@ -144,12 +144,17 @@ class MPAIL2LossBase(LossModule):
         """Stop-gradient latents ``(z, z')`` of the expert pairs under the ``expert`` prefix."""
         return self._pair_latents(td, self._prefix(self.tensor_keys.expert))
 
+    @staticmethod
+    def checked_start_fraction(fraction: float) -> float:
+        """``expert_start_fraction`` as a float, refused outside [0, 1] (checked once, when a loss is built)."""
+        if not 0.0 <= float(fraction) <= 1.0:
+            raise ValueError(f"expert_start_fraction must lie in [0, 1], got {fraction}")
+        return float(fraction)
+
     def expert_starts(self, td: TensorDictBase, fraction: float, expert_latents=None) -> Tensor | None:
         """Stop-gradient latents ``[k, Z]`` of the first ``round(fraction * n)`` of the batch's ``n`` expert
         observations (at least one when ``fraction > 0``; from ``expert_latents`` where the composite encoded them
         already), or None when ``fraction`` is 0."""
-        if not 0.0 <= fraction <= 1.0:
-            raise ValueError(f"expert_start_fraction must lie in [0, 1], got {fraction}")
         if fraction == 0:
             return None
         z = (expert_latents if expert_latents is not None else self.expert_latents(td))[0]

@@ -63,7 +63,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         self.gamma, self.lmbda = gamma, lmbda
         self.return_form = _checked_form(return_form)
         self.q_reduce = q_reduce
-        self.expert_start_fraction = float(expert_start_fraction)
+        self.expert_start_fraction = self.checked_start_fraction(expert_start_fraction)
 
     def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
         z = latents[0] if latents is not None else self.replay_latents(tensordict)[0]

@@ -67,7 +67,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         if head_reduce not in ("sum", "mean"):
             raise ValueError(f"head_reduce must be 'sum' or 'mean', got {head_reduce!r}")
         self.gamma, self.lmbda, self.mask_terminal, self.head_reduce = gamma, lmbda, mask_terminal, head_reduce
-        self.expert_start_fraction = float(expert_start_fraction)
+        self.expert_start_fraction = self.checked_start_fraction(expert_start_fraction)
         self.return_form = _checked_form(return_form)
 
     @torch.no_grad()

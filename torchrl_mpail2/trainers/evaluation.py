@@ -24,7 +24,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
 
 __all__ = ["DEFAULT_EVAL_SEED", "episode_outcome", "evaluate_episodes", "evaluate_episodes_lockstep",
-           "evaluation_env", "evaluation_seeds", "summarize_outcomes"]
+           "evaluation_env", "evaluation_seeds", "run_eval_seed", "summarize_outcomes"]
 
 #: Safety cap on an evaluation episode's length (the envs end their episodes themselves).
 MAX_EVAL_STEPS = 100_000
@@ -44,6 +44,11 @@ def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
     return [first_seed + i for i in range(episodes)]
 
 
+def run_eval_seed(train: Mapping) -> int:
+    """A saved run's ``train.eval_seed`` (:data:`DEFAULT_EVAL_SEED` for runs saved before it existed)."""
+    return train.get("eval_seed", DEFAULT_EVAL_SEED)
+
+
 def evaluation_env(train: Mapping) -> EnvBase:
     """The environment a run's own evaluations play in, rebuilt from its saved ``train`` section (``env``, ``obs``,
     ``env_kwargs``, ``eval_seed``): constructed with seed ``eval_seed``, as the trainer builds its evaluation env.
@@ -53,7 +58,7 @@ def evaluation_env(train: Mapping) -> EnvBase:
     to about 2 mm different, and a checkpoint re-evaluated in it can score otherwise than in its run."""
     from torchrl_mpail2.envs import make_env
 
-    return make_env(train["env"], obs=train["obs"], seed=train.get("eval_seed", DEFAULT_EVAL_SEED),
+    return make_env(train["env"], obs=train["obs"], seed=run_eval_seed(train),
                     **(train.get("env_kwargs") or {}))
 
 
