@@ -10,7 +10,11 @@ Each seed trains in its own process (``--parallel`` at a time, one torch thread 
 ``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done, one
 with a checkpoint resumes from it, one without starts afresh. Every evaluation plays the same episodes (env seeds
 ``train.eval_seed + i``, seeded planner noise), and a checkpoint is saved at each, so the maximum over the
-evaluations is the paper's Best (every checkpoint evaluated on the same episodes) and the final one its Last.
+evaluations is a Best (every checkpoint evaluated on the same episodes) and the final one the paper's Last. The
+paper's Best picks among checkpoints saved every 10 episodes: ``--checkpoint-every 10`` saves them (16 MB each on
+Lift), ``benchmarks/evaluate_checkpoints.py RUN --from-episode E --held-out 50`` scores them (and the chosen one on
+50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
+``best_all_checkpoints_success_any_step`` and ``best_checkpoint_held_out_success_any_step`` beside the evaluations'.
 
 Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
 ``curve`` with the mean and std over seeds, ``best_success_any_step``, ``last_success_any_step``,
@@ -60,6 +64,8 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
     """
     base = [sys.executable, "-m", "torchrl_mpail2.train"]
     resume = [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}"]
+    if getattr(args, "checkpoint_every", None):  # a resumed run may save its checkpoints at another spacing
+        resume.append(f"train.checkpoint_every={args.checkpoint_every}")
     if (run_dir / "summary.json").exists():
         if args.extend_min and _episodes_done(run_dir) < args.episodes:
             # the earlier part's summary is kept so that the seed's wall time adds up over its parts
@@ -73,7 +79,8 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
     every = f"train.eval_every={args.eval_every}"
     return [*base, "--preset", args.preset, f"train.seed={seed}", f"train.run_dir={run_dir}", "train.threads=1",
             "train.progress=false", f"train.total_episodes={args.episodes}", f"train.max_wall_s={args.budget_min * 60}",
-            every, f"train.checkpoint_every={args.eval_every}", f"train.eval_episodes={args.eval_episodes}", *overrides]
+            every, f"train.checkpoint_every={getattr(args, 'checkpoint_every', None) or args.eval_every}",
+            f"train.eval_episodes={args.eval_episodes}", *overrides]
 
 
 def log_tail(path: Path, lines: int = 15) -> str:
@@ -179,7 +186,8 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
             "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary),
-            "time_split_s": _time_split(parts + [summary])}
+            "time_split_s": _time_split(parts + [summary]),
+            "all_checkpoints": all_checkpoints(run_dir, json.loads((run_dir / "config.json").read_text())["train"])}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
     missing = sorted(set(only or ()) - set(seeds))
@@ -190,10 +198,37 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
                                     for e in d["evals"]],
                     "training_success": training_success(d["episodes"]),
                     "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
-                    "time_split": d["time_split_s"]}
+                    "time_split": d["time_split_s"], "all_checkpoints": d["all_checkpoints"]}
                 for s, d in seeds.items()}
     config = next(iter(seeds.values()))["config"]
     return _write_result(name, config, per_seed, git_commit(runs_root, short=False))
+
+
+def all_checkpoints(run_dir: Path, train: dict) -> dict | None:
+    """A seed's ``checkpoint_evals.json`` (``benchmarks/evaluate_checkpoints.py``) in brief, when it played the
+    run's own evaluation episodes deterministically: how many checkpoints from which episode, the Best among them
+    and its held-out score; None without one (or for another set of episodes)."""
+    from torchrl_mpail2.trainers.evaluation import run_eval_seed
+
+    path = run_dir / "checkpoint_evals.json"
+    if not path.exists():
+        return None
+    evals = json.loads(path.read_text())
+    if (evals.get("acting") != "deterministic" or evals.get("episodes_per_checkpoint") != train["eval_episodes"]
+            or evals.get("first_eval_seed") != run_eval_seed(train)):
+        return None
+    rows = evals["checkpoints"]
+    held = evals.get("held_out")
+    return {"checkpoints": len(rows), "episodes": [r["episode"] for r in rows],
+            "best_success_any_step": evals["best_success_rate_any_step"], "best_episode": evals.get("best_episode"),
+            "held_out": None if held is None else {k: held[k] for k in ("checkpoint", "first_seed", "episodes",
+                                                                        "success_rate_any_step", "success_rate")}}
+
+
+def _mean_over_seeds(per_seed: dict[int, dict], pick) -> float | None:
+    """The mean of ``pick(seed's all_checkpoints)`` when every seed has one, else None."""
+    values = [pick(p["all_checkpoints"]) if p.get("all_checkpoints") else None for p in per_seed.values()]
+    return None if any(v is None for v in values) else statistics.fmean(values)
 
 
 def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, extra: dict | None = None) -> dict:
@@ -229,6 +264,9 @@ def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, ex
         "best_success_any_step": statistics.fmean(p["best_success_any_step"] for p in usable) if usable else None,
         "last_success_any_step": statistics.fmean(p["last_success_any_step"] for p in usable) if usable else None,
         "last_success_last_step": statistics.fmean(p["last_success_last_step"] for p in usable) if usable else None,
+        "best_all_checkpoints_success_any_step": _mean_over_seeds(per_seed, lambda a: a["best_success_any_step"]),
+        "best_checkpoint_held_out_success_any_step": _mean_over_seeds(
+            per_seed, lambda a: a["held_out"]["success_rate_any_step"] if a["held_out"] else None),
         "episodes_to_50": first_reaching(0.5), "episodes_to_80": first_reaching(0.8),
         "episodes": [per_seed[s]["episodes"] for s in sorted(per_seed)],
         "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
@@ -243,7 +281,7 @@ def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, ex
 
 
 #: Training settings that may differ between the results :func:`merge` combines (they do not change what is learnt).
-MERGE_FREE_FIELDS = ("seed", "run_dir", "max_wall_s", "total_episodes", "threads", "progress")
+MERGE_FREE_FIELDS = ("seed", "run_dir", "max_wall_s", "total_episodes", "threads", "progress", "checkpoint_every")
 
 
 def _config_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
@@ -348,6 +386,9 @@ def main() -> None:
                    help="resume seeds that stopped at their budget short of --episodes for this many more minutes")
     p.add_argument("--eval-every", type=int, default=50)
     p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--checkpoint-every", type=int, default=None,
+                   help="save a checkpoint every this many episodes (default: at each evaluation); the paper's Best "
+                        "picks among checkpoints every 10 (benchmarks/evaluate_checkpoints.py scores them)")
     p.add_argument("--parallel", type=int, default=2)
     p.add_argument("--runs-root", type=Path, default=ROOT / "runs" / "learning")
     p.add_argument("--summarize", action="store_true", help="only rewrite the results from the run folders")

@@ -160,12 +160,39 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
     spec = importlib.util.spec_from_file_location("evaluate_checkpoints", ROOT / "benchmarks" / "evaluate_checkpoints.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    result = bench.evaluate_run(run_dir, episodes=trainer.cfg.train.eval_episodes)
+    result = bench.evaluate_run(run_dir, reuse_run_evals=False)  # as many episodes as the run's own
     logged = [json.loads(line) for line in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert [row["episode"] for row in result["checkpoints"]] == [3]
     row = result["checkpoints"][0]
+    assert row["source"] == "re-evaluated" and row["episodes"] == trainer.cfg.train.eval_episodes
     assert row["success_any_step_per_episode"] == logged[-1]["success_any_step_per_episode"]
     assert row["success_rate"] == logged[-1]["success_rate"]
+    with pytest.raises(SystemExit, match="no numbered checkpoints from episode 4"):
+        bench.evaluate_run(run_dir, from_episode=4)
+
+
+def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scores_the_best_held_out(
+        trained_run, monkeypatch, tmp_path):
+    trainer, run_dir = trained_run
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("evaluate_checkpoints", ROOT / "benchmarks" / "evaluate_checkpoints.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "checkpoint_evals.json"
+    result = bench.evaluate_run(run_dir, held_out=2, out=out)
+    logged = json.loads((run_dir / "eval.jsonl").read_text().splitlines()[-1])
+    row = result["checkpoints"][0]
+    assert row["source"] == "run" and row["success_any_step_per_episode"] == logged["success_any_step_per_episode"]
+    held = result["held_out"]
+    assert held["checkpoint"] == result["best_checkpoint"] == "episode_000003" and held["episodes"] == 2
+    assert held["first_seed"] == trainer.cfg.train.eval_seed + bench.HELD_OUT_SEED_OFFSET
+    assert json.loads(out.read_text()) == result
+    # a row already in the file is kept, not played again; one for other episodes is not reused
+    marked = {**result, "checkpoints": [{**row, "success_rate_any_step": 0.125}]}
+    out.write_text(json.dumps(marked))
+    assert bench.evaluate_run(run_dir, out=out)["checkpoints"][0]["success_rate_any_step"] == 0.125
+    out.write_text(json.dumps({**marked, "episodes_per_checkpoint": 7}))
+    assert bench.evaluate_run(run_dir, out=out)["checkpoints"][0]["success_rate_any_step"] == row["success_rate_any_step"]
 
 
 def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch):

@@ -283,7 +283,8 @@ def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
         MPAIL2Trainer.resume(run, ["train.batch_size=4"])
     with pytest.raises(ConfigError, match=r"\['model.horizon'\] cannot change"):
         MPAIL2Trainer.resume(run, {"model.horizon": 4})
-    trainer = MPAIL2Trainer.resume(run, {"train.total_episodes": 3})  # typed, from Python
+    # typed, from Python; denser checkpoints may be asked of a resumed run (they change nothing it learns)
+    trainer = MPAIL2Trainer.resume(run, {"train.total_episodes": 3, "train.checkpoint_every": 3})
     first_launch = json.loads((run / "summary.json").read_text())
     summary = trainer.train()
     assert summary["episodes"] == 3 and len(trainer.replay) == 150 and _episodes_logged(run) == [1, 2, 3]
@@ -291,6 +292,7 @@ def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
     assert summary["run_wall_time_s"] >= first_launch["wall_time_s"] + summary["wall_time_s"] - 1.0
     assert first_launch["run_wall_time_s"] == pytest.approx(first_launch["wall_time_s"], abs=1.0)
     assert '"total_episodes": 3' in (run / "config.json").read_text()
+    assert [p.name for p in sorted((run / "checkpoints").glob("episode_*"))] == ["episode_000003"]
 
 
 def test_resume_with_other_network_sizes_names_the_fields(demo_dir, tmp_path):

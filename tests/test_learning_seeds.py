@@ -184,3 +184,52 @@ def test_summarize_can_leave_out_a_seed_that_has_not_evaluated_yet(bench, tmp_pa
     assert r["seeds"] == [0, 1] and [c["episode"] for c in r["curve"]] == [50, 100]
     with pytest.raises(SystemExit, match=r"seed\(s\) \[5\]"):
         bench.summarize("demo", tmp_path, only=[0, 5])
+
+
+def _checkpoint_evals(run, rows, held_out=None, episodes=20, acting="deterministic"):
+    """A ``checkpoint_evals.json`` as ``benchmarks/evaluate_checkpoints.py`` writes it: ``rows`` of (episode, any step)."""
+    checkpoints = [{"episode": e, "checkpoint": f"episode_{e:06d}", "success_rate_any_step": a, "success_rate": a}
+                   for e, a in rows]
+    best = max(checkpoints, key=lambda r: r["success_rate_any_step"])
+    evals = {"acting": acting, "episodes_per_checkpoint": episodes, "first_eval_seed": 2_000_000,
+             "checkpoints": checkpoints, "best_success_rate_any_step": best["success_rate_any_step"],
+             "best_checkpoint": best["checkpoint"], "best_episode": best["episode"]}
+    if held_out is not None:
+        evals["held_out"] = {"checkpoint": best["checkpoint"], "first_seed": 2_100_000, "episodes": 50,
+                             "success_rate_any_step": held_out, "success_rate": held_out}
+    (run / "checkpoint_evals.json").write_text(json.dumps(evals))
+
+
+def test_the_best_of_every_checkpoint_and_its_held_out_score_join_the_summary(bench, tmp_path):
+    _fake_seed(tmp_path, 0, [(50, 0.4, 0.2), (100, 0.6, 0.6)])
+    _fake_seed(tmp_path, 1, [(50, 0.6, 0.4), (100, 0.5, 0.5)])
+    r = bench.summarize("demo", tmp_path)
+    assert r["best_all_checkpoints_success_any_step"] is None  # no seed has them
+    _checkpoint_evals(tmp_path / "demo" / "seed0", [(90, 0.85), (100, 0.6)], held_out=0.62)
+    r = bench.summarize("demo", tmp_path)
+    assert r["per_seed"][0]["all_checkpoints"]["best_episode"] == 90 and r["per_seed"][1]["all_checkpoints"] is None
+    assert r["best_all_checkpoints_success_any_step"] is None  # seed 1 has none: no mean over part of the seeds
+    _checkpoint_evals(tmp_path / "demo" / "seed1", [(60, 0.75), (100, 0.5)], held_out=0.58)
+    r = bench.summarize("demo", tmp_path)
+    assert r["best_all_checkpoints_success_any_step"] == pytest.approx(0.8)
+    assert r["best_checkpoint_held_out_success_any_step"] == pytest.approx(0.6)
+    assert r["best_success_any_step"] == pytest.approx(0.6)  # the evaluations' own Best is kept beside it
+    _checkpoint_evals(tmp_path / "demo" / "seed1", [(60, 0.75)], episodes=10)  # another episode set: not used
+    assert bench.summarize("demo", tmp_path)["per_seed"][1]["all_checkpoints"] is None
+
+
+def test_merge_allows_another_checkpoint_spacing(bench, tmp_path):
+    _result_named(bench, tmp_path, "first", {0: [(50, 0.2, 0.1)]}, checkpoint_every=50)
+    _result_named(bench, tmp_path, "dense", {1: [(50, 0.4, 0.3)]}, checkpoint_every=10)
+    assert bench.merge("all", ["first", "dense"])["seeds"] == [0, 1]
+
+
+def test_checkpoints_are_saved_at_each_evaluation_unless_asked_otherwise(bench, tmp_path):
+    run = tmp_path / "demo" / "seed0"
+    args = type("Args", (), {"episodes": 300, "extend_min": 0.0, "preset": "lift_state", "budget_min": 10.0,
+                             "eval_every": 50, "eval_episodes": 20, "checkpoint_every": None})()
+    assert "train.checkpoint_every=50" in bench.seed_command(run, 0, args, [])
+    args.checkpoint_every = 10
+    assert "train.checkpoint_every=10" in bench.seed_command(run, 0, args, [])
+    (run / "checkpoints" / "last").mkdir(parents=True)  # resumed: the spacing may change, nothing else
+    assert bench.seed_command(run, 0, args, [])[-2:] == ["train.total_episodes=300", "train.checkpoint_every=10"]

@@ -20,7 +20,7 @@ from torchrl_mpail2.config import (
 )
 
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
-RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads")
+RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads", "train.checkpoint_every")
 
 
 @dataclass
