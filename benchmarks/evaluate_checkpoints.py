@@ -15,7 +15,8 @@ The Best of many checkpoints scored on the same 20 episodes is the maximum of ma
 upwards (16 independent 20-episode scores of a true 0.6 have an expected maximum of 0.79, and reach 0.8 in 57% of
 draws; 6 of them 0.74). ``--held-out N`` scores the chosen
 checkpoint once more on ``N`` other episodes (seeds ``train.eval_seed + HELD_OUT_SEED_OFFSET + i``), which it was
-not chosen on: an unbiased figure for the Best checkpoint.
+not chosen on: an unbiased figure for the Best checkpoint; the last checkpoint, chosen by nothing, is scored there too
+(``held_out_last``), which shows how far the held-out episodes and the fixed ones differ without a choice.
 
 Writes ``RUN_DIR/checkpoint_evals.json`` (``checkpoint_evals_random.json``) after every checkpoint, and resumes from
 it (a row is reused when its episodes, acting and first seed match); with ``--name`` also
@@ -128,6 +129,9 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
         result = _summary(header, rows)
         if held_out:
             result["held_out"] = score_held_out(run_dir, result["best_checkpoint"], env, train, held_out, acting)
+            last = rows[-1]["checkpoint"]  # not chosen: how far the fixed episodes and held-out ones differ anyway
+            result["held_out_last"] = (result["held_out"] if last == result["best_checkpoint"] else
+                                       score_held_out(run_dir, last, env, train, held_out, acting))
             if out is not None:
                 out.write_text(json.dumps(result, indent=2))
     finally:

@@ -186,6 +186,7 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
     held = result["held_out"]
     assert held["checkpoint"] == result["best_checkpoint"] == "episode_000003" and held["episodes"] == 2
     assert held["first_seed"] == trainer.cfg.train.eval_seed + bench.HELD_OUT_SEED_OFFSET
+    assert result["held_out_last"] == held  # one checkpoint: the best is the last
     assert json.loads(out.read_text()) == result
     # a row already in the file is kept, not played again; one for other episodes is not reused
     marked = {**result, "checkpoints": [{**row, "success_rate_any_step": 0.125}]}
