@@ -9,7 +9,8 @@ Loads each numbered checkpoint's agent on its own (:meth:`MPAIL2Agent.from_check
 the run folder is only read) and plays ``--episodes`` (default: the run's ``train.eval_episodes``) deterministic
 episodes of the fixed evaluation set (``train.eval_seed + i``, the planner's noise seeded per episode: the same
 episodes as the run's own evaluations, in the env the run evaluated in). A checkpoint the run evaluated itself on
-the same episodes is not played again: its row is read from ``eval.jsonl`` (``"source": "run"``).
+the same episodes, acting as asked now (``train.eval_acting``), is not played again: its row is read from
+``eval.jsonl`` (``"source": "run"``).
 
 The Best of many checkpoints scored on the same 20 episodes is the maximum of many noisy figures, so it is biased
 upwards (16 independent 20-episode scores of a true 0.6 have an expected maximum of 0.79, and reach 0.8 in 57% of
@@ -82,6 +83,13 @@ def _earlier_rows(out: Path, header: dict) -> dict[int, dict]:
     return {row["episode"]: row for row in earlier.get("checkpoints", [])}
 
 
+def _write_atomically(out: Path, result: dict) -> None:
+    """``out`` holds either the previous result or this one, never a torn file."""
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(out)
+
+
 def _summary(header: dict, rows: list[dict]) -> dict:
     best = max(rows, key=lambda r: (r["success_rate_any_step"], r["success_rate"]))
     return {**header, "checkpoints": rows, "best_success_rate": max(r["success_rate"] for r in rows),
@@ -106,7 +114,8 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
     header = {"run": run_dir.name, "acting": acting, "episodes_per_checkpoint": episodes, "first_eval_seed": seeds[0],
               "from_episode": from_episode}
     known = _earlier_rows(out, header) if out is not None else {}
-    own = _runs_own_rows(run_dir, episodes) if acting == "deterministic" and reuse_run_evals else {}
+    # the run's own evaluations count only if they acted as asked now (``train.eval_acting``)
+    own = _runs_own_rows(run_dir, episodes) if reuse_run_evals and train.get("eval_acting", "deterministic") == acting else {}
     rows = []
     try:
         for episode, path in tqdm(checkpoints, desc="checkpoints"):
@@ -125,7 +134,7 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
                              **summarize_outcomes(outcomes), "seconds": time.perf_counter() - start})
             tqdm.write(json.dumps({k: v for k, v in rows[-1].items() if k != "success_any_step_per_episode"}))
             if out is not None:
-                out.write_text(json.dumps(_summary(header, rows), indent=2))
+                _write_atomically(out, _summary(header, rows))
         result = _summary(header, rows)
         if held_out:
             result["held_out"] = score_held_out(run_dir, result["best_checkpoint"], env, train, held_out, acting)
@@ -133,7 +142,7 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
             result["held_out_last"] = (result["held_out"] if last == result["best_checkpoint"] else
                                        score_held_out(run_dir, last, env, train, held_out, acting))
             if out is not None:
-                out.write_text(json.dumps(result, indent=2))
+                _write_atomically(out, result)
     finally:
         env.close()
     return result
@@ -173,7 +182,7 @@ def main() -> None:
     out = args.run_dir / f"checkpoint_evals{suffix}.json"
     result = evaluate_run(args.run_dir, args.episodes, args.threads, args.acting, args.from_episode, args.held_out,
                           out=out)
-    out.write_text(json.dumps(result, indent=2))
+    _write_atomically(out, result)
     if args.name:
         (RESULTS / f"{args.name}_checkpoints{suffix}.json").write_text(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "checkpoints"}, indent=2))

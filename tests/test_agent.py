@@ -187,6 +187,8 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
     assert held["checkpoint"] == result["best_checkpoint"] == "episode_000003" and held["episodes"] == 2
     assert held["first_seed"] == trainer.cfg.train.eval_seed + bench.HELD_OUT_SEED_OFFSET
     assert result["held_out_last"] == held  # one checkpoint: the best is the last
+    # the run evaluated deterministically: its rows do not stand for another way of acting
+    assert bench.evaluate_run(run_dir, acting="random")["checkpoints"][0]["source"] == "re-evaluated"
     assert json.loads(out.read_text()) == result
     # a row already in the file is kept, not played again; one for other episodes is not reused
     marked = {**result, "checkpoints": [{**row, "success_rate_any_step": 0.125}]}
