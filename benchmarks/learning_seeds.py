@@ -218,11 +218,12 @@ def all_checkpoints(run_dir: Path, train: dict) -> dict | None:
             or evals.get("first_eval_seed") != run_eval_seed(train)):
         return None
     rows = evals["checkpoints"]
+
     def brief(held):
         return None if held is None else {k: held[k] for k in ("checkpoint", "first_seed", "episodes",
                                                               "success_rate_any_step", "success_rate")}
 
-    return {"checkpoints": len(rows), "episodes": [r["episode"] for r in rows],
+    return {"checkpoints": len(rows), "from_episode": evals.get("from_episode"), "episodes": [r["episode"] for r in rows],
             "best_success_any_step": evals["best_success_rate_any_step"], "best_episode": evals.get("best_episode"),
             "held_out": brief(evals.get("held_out")), "held_out_last": brief(evals.get("held_out_last"))}
 
