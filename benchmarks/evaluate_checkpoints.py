@@ -20,7 +20,7 @@ not chosen on: an unbiased figure for the Best checkpoint; the last checkpoint, 
 (``held_out_last``), which shows how far the held-out episodes and the fixed ones differ without a choice.
 
 Writes ``RUN_DIR/checkpoint_evals.json`` (``checkpoint_evals_random.json``) after every checkpoint, and resumes from
-it (a row is reused when its episodes, acting and first seed match); with ``--name`` also
+it (a row is reused when its episodes, acting, first seed and ``--from-episode`` match); with ``--name`` also
 ``docs/results/diary/<name>_checkpoints.json``: success at the last step, success at any step (the paper's
 definition) and the task return per checkpoint.
 """
@@ -37,6 +37,7 @@ from tqdm import tqdm
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.trainers.evaluation import (ACTING, evaluate_episodes, evaluation_env, evaluation_seeds,
                                                 run_eval_seed, summarize_outcomes)
+from torchrl_mpail2.trainers.plots import EVAL_FILE, read_jsonl
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
 #: First seed of the held-out episodes is ``train.eval_seed`` plus this: clear of any fixed evaluation set.
@@ -56,18 +57,18 @@ def run_env(run_dir: Path):
 
 
 def _runs_own_rows(run_dir: Path, episodes: int) -> dict[int, dict]:
-    """The run's own evaluations (``eval.jsonl``) of ``episodes`` episodes, by training episode: they played the
-    fixed set deterministically, as :func:`evaluate_run` does."""
-    rows = {}
-    path = run_dir / "eval.jsonl"
-    for line in path.read_text().splitlines() if path.exists() else []:
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError:  # a torn last line of a killed run
-            continue
-        if row.get("episodes") == episodes and "success_any_step_per_episode" in row:
-            rows[row["episode"]] = row
-    return rows
+    """The run's own evaluations (``eval.jsonl``) of ``episodes`` episodes, by training episode: the fixed set,
+    played as the run's ``train.eval_acting`` says."""
+    return {row["episode"]: row for row in read_jsonl(run_dir / EVAL_FILE)
+            if row.get("episodes") == episodes and "success_any_step_per_episode" in row}
+
+
+def _play(path: Path, env, seeds: list[int], acting: str) -> dict:
+    """The checkpoint at ``path`` playing one episode per seed: :func:`summarize_outcomes` and the seconds taken."""
+    agent = MPAIL2Agent.from_checkpoint(path, env)
+    start = time.perf_counter()
+    outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting)
+    return {**summarize_outcomes(outcomes), "seconds": time.perf_counter() - start}
 
 
 def _earlier_rows(out: Path, header: dict) -> dict[int, dict]:
@@ -127,11 +128,8 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
                              **{k: own[episode][k] for k in ("success_rate_any_step", "success_rate", "return",
                                                               "episodes", "success_any_step_per_episode")}})
             else:
-                agent = MPAIL2Agent.from_checkpoint(path, env)
-                start = time.perf_counter()
-                outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting)
                 rows.append({"episode": episode, "checkpoint": path.name, "source": "re-evaluated",
-                             **summarize_outcomes(outcomes), "seconds": time.perf_counter() - start})
+                             **_play(path, env, seeds, acting)})
             tqdm.write(json.dumps({k: v for k, v in rows[-1].items() if k != "success_any_step_per_episode"}))
             if out is not None:
                 _write_atomically(out, _summary(header, rows))
@@ -141,21 +139,18 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
             last = rows[-1]["checkpoint"]  # not chosen: how far the fixed episodes and held-out ones differ anyway
             result["held_out_last"] = (result["held_out"] if last == result["best_checkpoint"] else
                                        score_held_out(run_dir, last, env, train, held_out, acting))
-            if out is not None:
-                _write_atomically(out, result)
     finally:
         env.close()
+    if out is not None:
+        _write_atomically(out, result)
     return result
 
 
 def score_held_out(run_dir: Path, checkpoint: str, env, train: dict, episodes: int, acting: str) -> dict:
     """``checkpoint`` scored on ``episodes`` held-out episodes (seeds from ``eval_seed + HELD_OUT_SEED_OFFSET``)."""
     seeds = evaluation_seeds(run_eval_seed(train) + HELD_OUT_SEED_OFFSET, episodes)
-    agent = MPAIL2Agent.from_checkpoint(run_dir / "checkpoints" / checkpoint, env)
-    start = time.perf_counter()
-    outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting)
-    return {"checkpoint": checkpoint, "first_seed": seeds[0], **summarize_outcomes(outcomes),
-            "seconds": time.perf_counter() - start}
+    return {"checkpoint": checkpoint, "first_seed": seeds[0],
+            **_play(run_dir / "checkpoints" / checkpoint, env, seeds, acting)}
 
 
 def main() -> None:
@@ -182,7 +177,6 @@ def main() -> None:
     out = args.run_dir / f"checkpoint_evals{suffix}.json"
     result = evaluate_run(args.run_dir, args.episodes, args.threads, args.acting, args.from_episode, args.held_out,
                           out=out)
-    _write_atomically(out, result)
     if args.name:
         (RESULTS / f"{args.name}_checkpoints{suffix}.json").write_text(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "checkpoints"}, indent=2))

@@ -183,11 +183,12 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
         # summaries counted one launch, so their parts are added up (launches cut by a crash are then missing)
         wall = (summary.get("run_wall_time_s") or sum(p["wall_time_s"] for p in parts) + summary.get("wall_time_s", 0.0)
                 if summary else None)
+        config = json.loads((run_dir / "config.json").read_text())
         seeds[int(run_dir.name.removeprefix("seed"))] = {
-            "config": json.loads((run_dir / "config.json").read_text()), "evals": evals, "episodes": episodes,
+            "config": config, "evals": evals, "episodes": episodes,
             "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary),
             "time_split_s": _time_split(parts + [summary]),
-            "all_checkpoints": all_checkpoints(run_dir, json.loads((run_dir / "config.json").read_text())["train"])}
+            "all_checkpoints": all_checkpoints(run_dir, config["train"])}
     if not seeds:
         raise SystemExit(f"no runs under {runs_root / name}")
     missing = sorted(set(only or ()) - set(seeds))
