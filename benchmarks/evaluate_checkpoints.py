@@ -20,7 +20,8 @@ not chosen on: an unbiased figure for the Best checkpoint; the last checkpoint, 
 (``held_out_last``), which shows how far the held-out episodes and the fixed ones differ without a choice.
 
 Writes ``RUN_DIR/checkpoint_evals.json`` (``checkpoint_evals_random.json``) after every checkpoint, and resumes from
-it (a row is reused when its episodes, acting, first seed and ``--from-episode`` match); with ``--name`` also
+it (a row, or a held-out score of the same checkpoint on as many episodes, is reused when the episodes, acting,
+first seed and ``--from-episode`` match); with ``--name`` also
 ``docs/results/diary/<name>_checkpoints.json``: success at the last step, success at any step (the paper's
 definition) and the task return per checkpoint.
 """
@@ -71,17 +72,15 @@ def _play(path: Path, env, seeds: list[int], acting: str) -> dict:
     return {**summarize_outcomes(outcomes), "seconds": time.perf_counter() - start}
 
 
-def _earlier_rows(out: Path, header: dict) -> dict[int, dict]:
-    """Rows of an earlier (possibly interrupted) evaluation written to ``out`` with the same ``header``."""
+def _earlier_result(out: Path, header: dict) -> dict:
+    """An earlier (possibly interrupted) evaluation written to ``out`` with the same ``header``, or ``{}``."""
     if not out.exists():
         return {}
     try:
         earlier = json.loads(out.read_text())
     except json.JSONDecodeError:
         return {}
-    if any(earlier.get(key) != value for key, value in header.items()):
-        return {}
-    return {row["episode"]: row for row in earlier.get("checkpoints", [])}
+    return earlier if all(earlier.get(key) == value for key, value in header.items()) else {}
 
 
 def _write_atomically(out: Path, result: dict) -> None:
@@ -114,7 +113,10 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
     seeds = evaluation_seeds(run_eval_seed(train), episodes)
     header = {"run": run_dir.name, "acting": acting, "episodes_per_checkpoint": episodes, "first_eval_seed": seeds[0],
               "from_episode": from_episode}
-    known = _earlier_rows(out, header) if out is not None else {}
+    earlier = _earlier_result(out, header) if out is not None else {}
+    known = {row["episode"]: row for row in earlier.get("checkpoints", [])}
+    # held-out scores of an earlier call, by (checkpoint, episodes): played once, however often this is called
+    scored = {(h["checkpoint"], h["episodes"]): h for h in (earlier.get("held_out"), earlier.get("held_out_last")) if h}
     # the run's own evaluations count only if they acted as asked now (``train.eval_acting``)
     own = _runs_own_rows(run_dir, episodes) if reuse_run_evals and train.get("eval_acting", "deterministic") == acting else {}
     rows = []
@@ -135,10 +137,14 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
                 _write_atomically(out, _summary(header, rows))
         result = _summary(header, rows)
         if held_out:
-            result["held_out"] = score_held_out(run_dir, result["best_checkpoint"], env, train, held_out, acting)
-            last = rows[-1]["checkpoint"]  # not chosen: how far the fixed episodes and held-out ones differ anyway
-            result["held_out_last"] = (result["held_out"] if last == result["best_checkpoint"] else
-                                       score_held_out(run_dir, last, env, train, held_out, acting))
+            def held_out_score(checkpoint: str) -> dict:
+                if (checkpoint, held_out) not in scored:
+                    scored[checkpoint, held_out] = score_held_out(run_dir, checkpoint, env, train, held_out, acting)
+                return scored[checkpoint, held_out]
+
+            result["held_out"] = held_out_score(result["best_checkpoint"])
+            # the last checkpoint, chosen by nothing: how far the fixed episodes and held-out ones differ anyway
+            result["held_out_last"] = held_out_score(rows[-1]["checkpoint"])
     finally:
         env.close()
     if out is not None:

@@ -196,6 +196,12 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
     assert bench.evaluate_run(run_dir, out=out)["checkpoints"][0]["success_rate_any_step"] == 0.125
     out.write_text(json.dumps({**marked, "episodes_per_checkpoint": 7}))
     assert bench.evaluate_run(run_dir, out=out)["checkpoints"][0]["success_rate_any_step"] == row["success_rate_any_step"]
+    # a held-out score in the file is kept too, unless asked for on another number of episodes
+    held_marked = {**held, "success_rate_any_step": 0.375}
+    out.write_text(json.dumps({**result, "held_out": held_marked, "held_out_last": held_marked}))
+    assert bench.evaluate_run(run_dir, held_out=2, out=out)["held_out"] == held_marked
+    longer = bench.evaluate_run(run_dir, held_out=3, out=out)["held_out"]
+    assert longer["episodes"] == 3 and longer["first_seed"] == held["first_seed"]
 
 
 def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch):
