@@ -21,7 +21,9 @@ not chosen on: an unbiased figure for the Best checkpoint; the last checkpoint, 
 
 Writes ``RUN_DIR/checkpoint_evals.json`` (``checkpoint_evals_random.json``) after every checkpoint, and resumes from
 it (a row, or a held-out score of the same checkpoint on as many episodes, is reused when the episodes, acting,
-first seed and ``--from-episode`` match); with ``--name`` also
+first seed and ``--from-episode`` match). Every held-out score ever played for that header stays in the file
+(``held_out_scores``), a call without ``--held-out`` included, which then reports the earlier scores of its Best and
+last checkpoints; with ``--name`` also
 ``docs/results/diary/<name>_checkpoints.json``: success at the last step, success at any step (the paper's
 definition) and the task return per checkpoint.
 """
@@ -115,8 +117,10 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
               "from_episode": from_episode}
     earlier = _earlier_result(out, header) if out is not None else {}
     known = {row["episode"]: row for row in earlier.get("checkpoints", [])}
-    # held-out scores of an earlier call, by (checkpoint, episodes): played once, however often this is called
-    scored = {(h["checkpoint"], h["episodes"]): h for h in (earlier.get("held_out"), earlier.get("held_out_last")) if h}
+    # held-out scores of earlier calls, by (checkpoint, episodes): played once, however often this is called, and
+    # kept in the file whatever this call asks for
+    scored = {(h["checkpoint"], h["episodes"]): h
+              for h in [*earlier.get("held_out_scores", []), earlier.get("held_out"), earlier.get("held_out_last")] if h}
     # the run's own evaluations count only if they acted as asked now (``train.eval_acting``)
     own = _runs_own_rows(run_dir, episodes) if reuse_run_evals and train.get("eval_acting", "deterministic") == acting else {}
     rows = []
@@ -136,15 +140,23 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
             if out is not None:
                 _write_atomically(out, _summary(header, rows))
         result = _summary(header, rows)
-        if held_out:
-            def held_out_score(checkpoint: str) -> dict:
+
+        def held_out_score(checkpoint: str) -> dict | None:
+            """Played on ``held_out`` episodes if asked for; without ``--held-out``, the score of an earlier call on
+            the most episodes, if any."""
+            if held_out:
                 if (checkpoint, held_out) not in scored:
                     scored[checkpoint, held_out] = score_held_out(run_dir, checkpoint, env, train, held_out, acting)
                 return scored[checkpoint, held_out]
+            earlier_scores = [h for (c, _), h in scored.items() if c == checkpoint]
+            return max(earlier_scores, key=lambda h: h["episodes"]) if earlier_scores else None
 
-            result["held_out"] = held_out_score(result["best_checkpoint"])
-            # the last checkpoint, chosen by nothing: how far the fixed episodes and held-out ones differ anyway
-            result["held_out_last"] = held_out_score(rows[-1]["checkpoint"])
+        # the last checkpoint, chosen by nothing: how far the fixed episodes and held-out ones differ anyway
+        for key, checkpoint in (("held_out", result["best_checkpoint"]), ("held_out_last", rows[-1]["checkpoint"])):
+            if (score := held_out_score(checkpoint)) is not None:
+                result[key] = score
+        if scored:
+            result["held_out_scores"] = sorted(scored.values(), key=lambda h: (h["checkpoint"], h["episodes"]))
     finally:
         env.close()
     if out is not None:

@@ -202,6 +202,10 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
     assert bench.evaluate_run(run_dir, held_out=2, out=out)["held_out"] == held_marked
     longer = bench.evaluate_run(run_dir, held_out=3, out=out)["held_out"]
     assert longer["episodes"] == 3 and longer["first_seed"] == held["first_seed"]
+    # a call without --held-out keeps every score played so far and reports the longest for the Best
+    again = bench.evaluate_run(run_dir, out=out)
+    assert again["held_out"] == longer and again["held_out_last"] == longer
+    assert [h["episodes"] for h in json.loads(out.read_text())["held_out_scores"]] == [2, 3]
 
 
 def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch):
