@@ -151,7 +151,8 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
             earlier_scores = [h for (c, _), h in scored.items() if c == checkpoint]
             return max(earlier_scores, key=lambda h: h["episodes"]) if earlier_scores else None
 
-        # the last checkpoint, chosen by nothing: how far the fixed episodes and held-out ones differ anyway
+        # the Best checkpoint, and the last one, chosen by nothing: how far the fixed episodes and held-out ones differ
+        # without a choice
         for key, checkpoint in (("held_out", result["best_checkpoint"]), ("held_out_last", rows[-1]["checkpoint"])):
             if (score := held_out_score(checkpoint)) is not None:
                 result[key] = score
