@@ -4,7 +4,8 @@ import torch
 
 from conftest import QUIET_RUN
 from torchrl_mpail2.config import ConfigError
-from torchrl_mpail2.diagnostics.lift_phases import lift_phases, main, summarize_phases, use_planner_settings
+from torchrl_mpail2.diagnostics.lift_phases import (grasped_without_success, lift_phases, main, summarize_phases,
+                                                    use_planner_settings)
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
@@ -23,6 +24,8 @@ def test_the_scripted_expert_passes_every_phase_and_standing_still_none(lift):
     done = lift_phases(lift.rollout(100, expert, break_when_any_done=True))
     assert done["reach"] and done["grasp"] and done["lift"] and done["success"], done
     assert done["closest_cm"] < 2 and done["highest_rise_cm"] > 4 and done["first_closing_step"] > 0
+    assert done["first_grasp_step"] >= done["first_closing_step"] and done["grasped_steps"] > 0
+    assert done["hand_rise_after_grasp_cm"] > 4  # the hand carried the cube up
 
     def still(td):
         return td.set("action", torch.zeros(4))
@@ -30,13 +33,20 @@ def test_the_scripted_expert_passes_every_phase_and_standing_still_none(lift):
     lift.set_seed(0)
     idle = lift_phases(lift.rollout(20, still))
     assert not any(idle[p] for p in ("reach", "grasp", "lift", "success")), idle
-    assert idle["first_closing_step"] is None
+    assert idle["first_closing_step"] is None and idle["first_grasp_step"] is None
+    assert idle["hand_rise_after_grasp_cm"] is None and idle["grasped_steps"] == 0
+    # the cube dropped at reset settles about 1 cm lower: heights count from where it rests, not from the drop
+    assert -0.3 < idle["highest_rise_cm"] < 0.3, idle
     assert summarize_phases([done, idle]) == {"reach": 0.5, "grasp": 0.5, "lift": 0.5, "success": 0.5}
+    slipped = dict(done, success=False)
+    assert grasped_without_success([done, idle, slipped]) == [
+        {k: done[k] for k in ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps")}]
 
 
 def test_a_rollout_without_state_keys_and_a_missing_checkpoint_are_named(lift, tmp_path):
     lift.set_seed(0)
     rollout = lift.rollout(2, lambda td: td.set("action", torch.zeros(4)))
+    assert lift_phases(rollout)["grasp"] is False  # shorter than the cube takes to settle: still read
     with pytest.raises(ValueError, match="'object'"):
         lift_phases(rollout.exclude(("next", "object")))
     with pytest.raises(Exception, match="nothere"):

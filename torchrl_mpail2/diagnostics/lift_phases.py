@@ -7,11 +7,16 @@ at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's
 * ``grasp``: while within reach, the fingers were closed onto something: their opening at least :data:`CLOSED_BY_M`
   below its largest value so far in the episode (closing; they start half open) but above :data:`SHUT_M` (stopped
   by the cube);
-* ``lift``: the cube rose :data:`LIFT_M` above where it started;
-* ``success``: the task's own success flag at any step.
+* ``lift``: the cube rose :data:`LIFT_M` above where it rests on the table (robosuite drops it from 1 cm above the
+  table at reset; it settles by step :data:`SETTLED_STEP`, and heights are measured from there);
+* ``success``: the task's own success flag at any step (the cube's centre 4 cm above the table: about 2.1 cm above
+  where it rests).
 
-Also per episode: the closest approach (cm), the highest rise (cm) and the first step at which the fingers were
-closing::
+Also per episode: the closest approach (cm), the cube's highest rise above its resting height (cm), the first step at
+which the fingers were closing, and, for episodes that grasped, how far the hand rose after the first grasp
+(``hand_rise_after_grasp_cm``: the hand's highest point after the grasp minus its height at the grasp) and for how
+many steps the fingers held something within reach (``grasped_steps``). A hand that rose well past 2 cm while the
+cube did not follow let it slip; a hand that stayed down never tried to lift::
 
     python -m torchrl_mpail2.diagnostics lift_phases RUN/checkpoints/episode_000300 [...] --episodes 20 --out F.json
 
@@ -30,13 +35,17 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["lift_phases", "summarize_phases", "use_planner_settings"]
+__all__ = ["grasped_without_success", "lift_phases", "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
 #: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
 #: nothing, about 0.05 m on the cube.
 CLOSED_BY_M, SHUT_M = 0.005, 0.01
 LIFT_M = 0.01
+#: The step (of ``("next", ...)``) by which the dropped cube has settled: -1.15, -1.27, -1.14, -1.08, -1.05, -1.03 and
+#: then -1.02 cm below its reset height at steps 0-6 with the hand still. The hand starts 18-20 cm away and moves
+#: at most about 1.3 cm per step, so it cannot have touched the cube by then.
+SETTLED_STEP = 5
 PHASES = ("reach", "grasp", "lift", "success")
 
 
@@ -52,23 +61,37 @@ def lift_phases(rollout: TensorDictBase) -> dict:
     proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
     distance = np.linalg.norm(obj[:, OBJECT_EEF_TO_CUBE], axis=-1)
     opening = proprio[:, 3] - proprio[:, 4]
-    rise = obj[:, 2] - float(rollout["object"][0, 2])
+    rise = obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]
+    hand_z = obj[:, 2] + obj[:, OBJECT_EEF_TO_CUBE][:, 2]
     near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M
+    held = near & closing & (opening > SHUT_M)
+    first_grasp = int(np.argmax(held)) if held.any() else None
     success = rollout.get(("next", "success"), None)
     return {
         "reach": bool(near.any()),
-        "grasp": bool((near & closing & (opening > SHUT_M)).any()),
+        "grasp": first_grasp is not None,
         "lift": bool((rise > LIFT_M).any()),
         "success": bool(success.any()) if success is not None else None,
         "closest_cm": round(float(distance.min()) * 100, 1),
         "highest_rise_cm": round(float(rise.max()) * 100, 1),
         "first_closing_step": int(np.argmax(closing)) if closing.any() else None,
+        "first_grasp_step": first_grasp,
+        "grasped_steps": int(held.sum()),
+        "hand_rise_after_grasp_cm": (round(float(hand_z[first_grasp:].max() - hand_z[first_grasp]) * 100, 1)
+                                     if first_grasp is not None else None),
     }
 
 
 def summarize_phases(episodes: list[dict]) -> dict:
     """The share of episodes that reached each phase."""
     return {phase: float(np.mean([bool(e[phase]) for e in episodes])) for phase in PHASES if episodes}
+
+
+def grasped_without_success(episodes: list[dict]) -> list[dict]:
+    """The episodes that grasped the cube and never succeeded: how high the cube and the hand rose after the grasp
+    (cm) and how many steps the fingers held it."""
+    keys = ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps")
+    return [{k: e[k] for k in keys} for e in episodes if e["grasp"] and not e["success"]]
 
 
 def _check_planner_overrides(overrides) -> None:
@@ -112,7 +135,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     per_episode = [lift_phases(rollout) for rollout in rollouts]
     return {"checkpoint": str(path), "episodes": episodes, "planner_overrides": list(planner_overrides),
             "acting": acting, "phases": summarize_phases(per_episode),
-            "per_episode": per_episode}
+            "grasped_without_success": grasped_without_success(per_episode), "per_episode": per_episode}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -136,6 +159,9 @@ def main(argv: list[str] | None = None) -> None:
         result = evaluate_checkpoint(path, args.episodes, args.planner, args.acting)
         results.append(result)
         print(f"{path[-60:]:60s} " + " ".join(f"{result['phases'][p]:7.2f}" for p in PHASES), flush=True)
+        for episode in result["grasped_without_success"]:
+            print(f"  grasped, no success: cube rose {episode['highest_rise_cm']} cm, hand "
+                  f"{episode['hand_rise_after_grasp_cm']} cm after the grasp, held {episode['grasped_steps']} steps")
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
