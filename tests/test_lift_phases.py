@@ -26,6 +26,7 @@ def test_the_scripted_expert_passes_every_phase_and_standing_still_none(lift):
     assert done["closest_cm"] < 2 and done["highest_rise_cm"] > 4 and done["first_closing_step"] > 0
     assert done["first_grasp_step"] >= done["first_closing_step"] and done["grasped_steps"] > 0
     assert done["hand_rise_after_grasp_cm"] > 4  # the hand carried the cube up
+    assert done["held_action"][3] > 0 and done["held_action"][2] > 0  # closing and rising while holding
 
     def still(td):
         return td.set("action", torch.zeros(4))
@@ -34,13 +35,13 @@ def test_the_scripted_expert_passes_every_phase_and_standing_still_none(lift):
     idle = lift_phases(lift.rollout(20, still))
     assert not any(idle[p] for p in ("reach", "grasp", "lift", "success")), idle
     assert idle["first_closing_step"] is None and idle["first_grasp_step"] is None
-    assert idle["hand_rise_after_grasp_cm"] is None and idle["grasped_steps"] == 0
+    assert idle["hand_rise_after_grasp_cm"] is None and idle["grasped_steps"] == 0 and idle["held_action"] is None
     # the cube dropped at reset settles about 1 cm lower: heights count from where it rests, not from the drop
     assert -0.3 < idle["highest_rise_cm"] < 0.3, idle
     assert summarize_phases([done, idle]) == {"reach": 0.5, "grasp": 0.5, "lift": 0.5, "success": 0.5}
     slipped = dict(done, success=False)
     assert grasped_without_success([done, idle, slipped]) == [
-        {k: done[k] for k in ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps")}]
+        {k: done[k] for k in ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps", "held_action")}]
 
 
 def test_a_rollout_without_state_keys_and_a_missing_checkpoint_are_named(lift, tmp_path):

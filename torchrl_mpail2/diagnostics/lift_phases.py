@@ -14,9 +14,10 @@ at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's
 
 Also per episode: the closest approach (cm), the cube's highest rise above its resting height (cm), the first step at
 which the fingers were closing, and, for episodes that grasped, how far the hand rose after the first grasp
-(``hand_rise_after_grasp_cm``: the hand's highest point after the grasp minus its height at the grasp) and for how
-many steps the fingers held something within reach (``grasped_steps``). A hand that rose well past 2 cm while the
-cube did not follow let it slip; a hand that stayed down never tried to lift::
+(``hand_rise_after_grasp_cm``: the hand's highest point after the grasp minus its height at the grasp), for how
+many steps the fingers held something within reach (``grasped_steps``), and the mean action taken in those held
+states (``held_action``: ``[x, y, z, gripper]``, z > 0 up, gripper > 0 closing). A hand that rose well past 2 cm while
+the cube did not follow let it slip; a hand that stayed down never tried to lift::
 
     python -m torchrl_mpail2.diagnostics lift_phases RUN/checkpoints/episode_000300 [...] --episodes 20 --out F.json
 
@@ -66,6 +67,7 @@ def lift_phases(rollout: TensorDictBase) -> dict:
     near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M
     held = near & closing & (opening > SHUT_M)
     first_grasp = int(np.argmax(held)) if held.any() else None
+    held_actions = rollout["action"].numpy()[1:][held[:-1]]  # the action taken in each held state
     success = rollout.get(("next", "success"), None)
     return {
         "reach": bool(near.any()),
@@ -79,6 +81,7 @@ def lift_phases(rollout: TensorDictBase) -> dict:
         "grasped_steps": int(held.sum()),
         "hand_rise_after_grasp_cm": (round(float(hand_z[first_grasp:].max() - hand_z[first_grasp]) * 100, 1)
                                      if first_grasp is not None else None),
+        "held_action": [round(float(a), 2) for a in held_actions.mean(0)] if len(held_actions) else None,
     }
 
 
@@ -90,7 +93,7 @@ def summarize_phases(episodes: list[dict]) -> dict:
 def grasped_without_success(episodes: list[dict]) -> list[dict]:
     """The episodes that grasped the cube and never succeeded: how high the cube and the hand rose after the grasp
     (cm) and how many steps the fingers held it."""
-    keys = ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps")
+    keys = ("highest_rise_cm", "hand_rise_after_grasp_cm", "grasped_steps", "held_action")
     return [{k: e[k] for k in keys} for e in episodes if e["grasp"] and not e["success"]]
 
 
@@ -161,7 +164,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{path[-60:]:60s} " + " ".join(f"{result['phases'][p]:7.2f}" for p in PHASES), flush=True)
         for episode in result["grasped_without_success"]:
             print(f"  grasped, no success: cube rose {episode['highest_rise_cm']} cm, hand "
-                  f"{episode['hand_rise_after_grasp_cm']} cm after the grasp, held {episode['grasped_steps']} steps")
+                  f"{episode['hand_rise_after_grasp_cm']} cm after the grasp, held {episode['grasped_steps']} steps, "
+                  f"mean action there {episode['held_action']}")
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
