@@ -1,10 +1,10 @@
-"""``python -m torchrl_mpail2.diagnostics {plan_pictures,lift_phases,critic_profile} CKPT [...]``: the diagnostics'
+"""``python -m torchrl_mpail2.diagnostics {plan_pictures,lift_phases,held_plans,critic_profile} CKPT [...]``: the diagnostics'
 command line."""
 import sys
 
-from torchrl_mpail2.diagnostics import critic_profile, lift_phases, plan_pictures
+from torchrl_mpail2.diagnostics import critic_profile, held_plans, lift_phases, plan_pictures
 
-COMMANDS = {"critic_profile": critic_profile.main, "lift_phases": lift_phases.main,
+COMMANDS = {"critic_profile": critic_profile.main, "held_plans": held_plans.main, "lift_phases": lift_phases.main,
             "plan_pictures": plan_pictures.main}
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["grasped_without_success", "lift_phases", "summarize_phases", "use_planner_settings"]
+__all__ = ["grasped_without_success", "held_states", "lift_phases", "play_lift_episodes", "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
 #: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
@@ -50,22 +50,40 @@ SETTLED_STEP = 5
 PHASES = ("reach", "grasp", "lift", "success")
 
 
-def lift_phases(rollout: TensorDictBase) -> dict:
-    """The phases one Lift episode reached, from its rollout ``[T]`` (``rollout()`` output: observations and
-    ``("next", ...)``). Raises ``ValueError`` naming a missing key (``"proprio"`` / ``"object"``: state mode)."""
+def _check_state_keys(rollout: TensorDictBase) -> None:
     for key in ("proprio", "object"):
         if ("next", key) not in rollout.keys(include_nested=True):
             raise ValueError(f"lift_phases reads ('next', {key!r}) of a robosuite/Lift rollout in 'state' mode; the "
                            f"rollout has {sorted(str(k) for k in rollout.keys(include_nested=True, leaves_only=True))}")
+
+
+def _reach_closing_held(proprio: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per step: end-effector-to-cube distance, within reach, fingers closing, fingers held on something in reach."""
+    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+
+    distance = np.linalg.norm(obj[:, OBJECT_EEF_TO_CUBE], axis=-1)
+    opening = proprio[:, 3] - proprio[:, 4]
+    near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M
+    return distance, near, closing, near & closing & (opening > SHUT_M)
+
+
+def held_states(rollout: TensorDictBase) -> np.ndarray:
+    """``[T]`` booleans: after step ``t`` (``rollout["next"][t]``) the fingers hold something within reach of the
+    cube (the ``grasp`` phase's test)."""
+    _check_state_keys(rollout)
+    return _reach_closing_held(rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy())[3]
+
+
+def lift_phases(rollout: TensorDictBase) -> dict:
+    """The phases one Lift episode reached, from its rollout ``[T]`` (``rollout()`` output: observations and
+    ``("next", ...)``). Raises ``ValueError`` naming a missing key (``"proprio"`` / ``"object"``: state mode)."""
+    _check_state_keys(rollout)
     from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
 
     proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
-    distance = np.linalg.norm(obj[:, OBJECT_EEF_TO_CUBE], axis=-1)
-    opening = proprio[:, 3] - proprio[:, 4]
+    distance, near, closing, held = _reach_closing_held(proprio, obj)
     rise = obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]
     hand_z = obj[:, 2] + obj[:, OBJECT_EEF_TO_CUBE][:, 2]
-    near, closing = distance < REACH_M, opening < np.maximum.accumulate(opening) - CLOSED_BY_M
-    held = near & closing & (opening > SHUT_M)
     first_grasp = int(np.argmax(held)) if held.any() else None
     held_actions = rollout["action"].numpy()[1:][held[:-1]]  # the action taken in each held state
     success = rollout.get(("next", "success"), None)
@@ -115,11 +133,11 @@ def use_planner_settings(agent, overrides) -> None:
         agent.planner.cfg = apply_overrides(ExperimentConfig.from_dict(agent.run_config), list(overrides)).planner
 
 
-def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list[str] = (),
-                        acting: str = "deterministic") -> dict:
+def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[str] = (),
+                       acting: str = "deterministic") -> tuple:
     """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner (changed by
     ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
-    -> phases."""
+    -> ``(agent, rollouts)``. Refuses runs other than robosuite/Lift in ``"state"`` mode, naming them."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds, run_eval_seed
 
@@ -135,6 +153,13 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
     evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,
                       rollouts=rollouts, acting=acting)
     env.close()
+    return agent, rollouts
+
+
+def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list[str] = (),
+                        acting: str = "deterministic") -> dict:
+    """:func:`play_lift_episodes` -> the phases of each episode and their shares."""
+    _, rollouts = play_lift_episodes(path, episodes, planner_overrides, acting)
     per_episode = [lift_phases(rollout) for rollout in rollouts]
     return {"checkpoint": str(path), "episodes": episodes, "planner_overrides": list(planner_overrides),
             "acting": acting, "phases": summarize_phases(per_episode),

@@ -1,0 +1,45 @@
+"""The planner's returns of straight-up and straight-down plans at held Lift cubes."""
+import pytest
+import torch
+
+from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.config import ModelConfig, PlannerConfig
+from torchrl_mpail2.diagnostics.held_plans import VERTICAL, constant_vertical_plans, score_held_states
+from torchrl_mpail2.diagnostics.lift_phases import held_states
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.experts import get_expert
+
+pytest.importorskip("robosuite")
+
+
+def test_the_plans_hold_one_vertical_command_with_the_gripper_closing():
+    plans = constant_vertical_plans(3, 4)
+    assert plans.shape == (len(VERTICAL), 3, 4)
+    assert plans[:, :, 2].tolist() == [[v] * 3 for v in VERTICAL]
+    assert (plans[:, :, :2] == 0).all() and (plans[:, :, 3] == 1).all()
+    with pytest.raises(ValueError, match="action_dim is 2"):
+        constant_vertical_plans(3, 2)
+
+
+def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
+    lift = make_env("robosuite/Lift", seed=0)
+    lift.set_seed(0)
+    rollout = lift.rollout(100, get_expert("robosuite/Lift", lift), break_when_any_done=True)
+    held = held_states(rollout)[:-1]
+    assert held.sum() > 5
+    model = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
+    agent = MPAIL2Agent(lift.observation_spec, lift.action_spec, model,
+                        planner=PlannerConfig(num_candidates=16, num_elites=4, iterations=2))
+    failed = rollout.clone()
+    failed["next", "success"] = torch.zeros_like(failed["next", "success"])
+    groups = score_held_states(agent, [rollout, failed])
+    assert set(groups) == {"succeeded", "grasped_without_success"}
+    for row in groups.values():
+        assert row["states"] == int(held.sum())
+        assert list(row["mean_return"]) == [str(v) for v in VERTICAL]
+        assert 0.0 <= row["up_beats_down"] <= 1.0
+        assert row["taken_z_mean"] > 0  # the expert carries the cube up while holding it
+    assert groups["succeeded"]["mean_return"] == groups["grasped_without_success"]["mean_return"]
+    idle = lift.rollout(5, lambda td: td.set("action", torch.zeros(4)))
+    assert score_held_states(agent, [idle]) == {}  # no held state, no group
+    lift.close()
