@@ -4,7 +4,8 @@ import torch
 
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
-from torchrl_mpail2.diagnostics.held_plans import VERTICAL, constant_vertical_plans, score_held_states
+from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, score_held_states,
+                                                   straight_lift_from_held_states)
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
@@ -42,4 +43,12 @@ def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
     assert groups["succeeded"]["mean_return"] == groups["grasped_without_success"]["mean_return"]
     idle = lift.rollout(5, lambda td: td.set("action", torch.zeros(4)))
     assert score_held_states(agent, [idle]) == {}  # no held state, no group
+
+    # the replay reaches the recorded held states exactly, and a straight lift from the expert's grasps succeeds
+    lifts = straight_lift_from_held_states(lift, [0, 0], [rollout, failed], every=15, lift_steps=15)
+    assert lifts["succeeded"]["tested"] == len(range(0, int(held_states(rollout).sum()), 15))
+    assert lifts["succeeded"]["replay_exact"] == 1.0 and lifts["succeeded"]["lifted"] >= 0.5, lifts
+    assert lifts["grasped_without_success"] == lifts["succeeded"]  # same episode, only its label differs
+    with pytest.raises(ValueError, match="2 seeds, 1 rollouts"):
+        straight_lift_from_held_states(lift, [0, 0], [rollout])
     lift.close()

@@ -10,6 +10,12 @@ return of each vertical command, the share of held states where straight up (z =
 (z = -1), and the mean vertical action the agent took there. A model that scores "down" higher where the agent got
 stuck pressing a held cube onto the table is wrong about the task there; one that scores "up" higher while the
 agent still pushed down points at the search or its policy prior instead.
+
+Whether lifting would in fact have worked is measured too (``straight_lift``): every ``--every``-th held state of
+each episode is reached again by replaying the episode's actions from its seeded reset in the run's evaluation env
+(``replay_exact``: the share whose replayed observation equals the recorded one), then the hand is commanded
+straight up with the gripper closing for ``--lift-steps`` steps; ``lifted`` is the share of those that reach the
+task's success. A model that scores down above up where a straight lift succeeds is wrong there.
 """
 from __future__ import annotations
 
@@ -20,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["VERTICAL", "constant_vertical_plans", "score_held_states"]
+__all__ = ["VERTICAL", "constant_vertical_plans", "score_held_states", "straight_lift_from_held_states"]
 
 #: Vertical commands scored (fractions of a full step; robosuite's z points up).
 VERTICAL = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -66,12 +72,52 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
             z = encoder.encode(states)
             returns = planner.score(z, plans.unsqueeze(0).expand(len(z), *plans.shape).to(z.dtype), heads)
             taken_z = rollout["action"][1:][torch.as_tensor(held)][:, 2]
-            succeeded = bool(rollout["next", "success"].any()) if ("next", "success") in rollout.keys(True) else False
-            bucket = groups["succeeded" if succeeded else "grasped_without_success"]
+            bucket = groups[_outcome(rollout)]
             bucket[0].append(returns.float().numpy())
             bucket[1].append(taken_z.float().numpy())
     return {name: _group_rows(np.concatenate(r), np.concatenate(z), list(vertical))
             for name, (r, z) in groups.items() if r}
+
+
+def _outcome(rollout) -> str:
+    succeeded = bool(rollout["next", "success"].any()) if ("next", "success") in rollout.keys(True) else False
+    return "succeeded" if succeeded else "grasped_without_success"
+
+
+def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every: int = 10,
+                                   lift_steps: int = 20) -> dict:
+    """From every ``every``-th held state of each rollout (``rollouts[i]`` played from ``env.set_seed(seeds[i])``
+    and a reset), replays the recorded actions to that state, then commands ``[0, 0, +1, closing]`` for
+    ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)."""
+    from torchrl.envs.utils import step_mdp
+
+    from torchrl_mpail2.diagnostics.lift_phases import held_states
+
+    if len(seeds) != len(rollouts):
+        raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
+    if every < 1 or lift_steps < 1:
+        raise ValueError(f"every and lift_steps must be >= 1, got {every} and {lift_steps}")
+    groups: dict[str, list[tuple[bool, bool]]] = {}
+    for seed, rollout in zip(seeds, rollouts):
+        held = np.flatnonzero(held_states(rollout))
+        for t in held[::every]:
+            env.set_seed(seed)
+            td = env.reset()
+            for k in range(t + 1):  # after step t the state is rollout["next"][t]
+                td = step_mdp(env.step(td.set("action", rollout["action"][k].clone())))
+            exact = bool(torch.equal(td["object"], rollout["next", "object"][t]))
+            lift = torch.zeros_like(rollout["action"][0])
+            lift[2], lift[3] = 1.0, GRIPPER_CLOSING
+            lifted = False
+            for _ in range(lift_steps):
+                stepped = env.step(td.set("action", lift.clone()))
+                lifted = lifted or bool(stepped["next", "success"].any())
+                if bool(stepped["next", "done"].any()):
+                    break
+                td = step_mdp(stepped)
+            groups.setdefault(_outcome(rollout), []).append((lifted, exact))
+    return {name: {"tested": len(rows), "lifted": round(float(np.mean([r[0] for r in rows])), 3),
+                   "replay_exact": round(float(np.mean([r[1] for r in rows])), 3)} for name, rows in groups.items()}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -80,22 +126,34 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("checkpoints", nargs="+", help="checkpoint folders of robosuite/Lift state runs")
     parser.add_argument("--episodes", type=int, default=20, help="the run's first N fixed evaluation episodes")
     parser.add_argument("--out", help="write the results to this JSON file")
+    parser.add_argument("--every", type=int, default=10, help="lift straight up from every N-th held state")
+    parser.add_argument("--lift-steps", type=int, default=20, help="steps of the straight lift")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     from torchrl_mpail2.diagnostics.lift_phases import play_lift_episodes
+    from torchrl_mpail2.trainers.evaluation import evaluation_env, evaluation_seeds, run_eval_seed
 
     results = []
     for path in args.checkpoints:
         agent, rollouts = play_lift_episodes(path, args.episodes)
+        train = agent.run_config["train"]
+        env = evaluation_env(train)
+        lifts = straight_lift_from_held_states(env, evaluation_seeds(run_eval_seed(train), args.episodes), rollouts,
+                                               args.every, args.lift_steps)
+        env.close()
         result = {"checkpoint": str(path), "episodes": args.episodes, "vertical": list(VERTICAL),
-                  "groups": score_held_states(agent, rollouts)}
+                  "every": args.every, "lift_steps": args.lift_steps,
+                  "groups": score_held_states(agent, rollouts), "straight_lift": lifts}
         results.append(result)
         print(path)
         for name, row in result["groups"].items():
             returns = " ".join(f"{v}: {r:.2f}" for v, r in row["mean_return"].items())
             print(f"  {name:24s} {row['states']:4d} held states  return by z [{returns}]  up beats down "
                   f"{row['up_beats_down']:.2f}  z taken {row['taken_z_mean']:+.2f}", flush=True)
+        for name, row in result["straight_lift"].items():
+            print(f"  {name:24s} straight lift from {row['tested']} held states: lifted {row['lifted']:.2f} "
+                  f"(replayed exactly: {row['replay_exact']:.2f})", flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
