@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torchrl.envs.utils import step_mdp
+
+from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "score_held_states", "straight_lift_from_held_states"]
 
@@ -57,8 +60,6 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
     """The planner's returns of :func:`constant_vertical_plans` at the held states of ``rollouts`` (each the
     ``[T]`` rollout of one Lift episode in ``"state"`` mode), over every Q head, grouped by the episode's outcome
     -> ``{"succeeded": row, "grasped_without_success": row}`` (a group without held states is left out)."""
-    from torchrl_mpail2.diagnostics.lift_phases import held_states
-
     planner, encoder = agent.planner, agent.modules.encoder
     plans = constant_vertical_plans(planner.horizon, planner.action_dim, vertical)
     heads = torch.arange(agent.modules.value.net.num_q)
@@ -89,10 +90,6 @@ def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every:
     """From every ``every``-th held state of each rollout (``rollouts[i]`` played from ``env.set_seed(seeds[i])``
     and a reset), replays the recorded actions to that state, then commands ``[0, 0, +1, closing]`` for
     ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)."""
-    from torchrl.envs.utils import step_mdp
-
-    from torchrl_mpail2.diagnostics.lift_phases import held_states
-
     if len(seeds) != len(rollouts):
         raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
     if every < 1 or lift_steps < 1:
@@ -131,7 +128,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    from torchrl_mpail2.diagnostics.lift_phases import play_lift_episodes
     from torchrl_mpail2.trainers.evaluation import evaluation_env, evaluation_seeds, run_eval_seed
 
     results = []
