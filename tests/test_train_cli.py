@@ -31,3 +31,15 @@ def test_every_preset_builds_and_the_pixel_presets_have_the_image_latent(name):
     cfg = preset(name)
     if cfg.train.obs != "state":
         assert cfg.model.latent_dim == 512  # Table 4
+
+
+def test_lift_uses_the_raw_critic_with_penalty_10_and_push_keeps_the_reward_it_was_measured_with():
+    lift, push = preset("lift_state").to_dict(), preset("push_state").to_dict()
+    assert (lift["loss"]["reward_scale_momentum"], lift["loss"]["gp_coef"]) == (None, 10.0)
+    assert (push["loss"]["reward_scale_momentum"], push["loss"]["gp_coef"]) == (0.99, 0.1)
+    # otherwise Push is Lift's configuration on another task
+    for section in ("model", "planner"):
+        assert push[section] == lift[section]
+    differing = {k for k in lift["loss"] if lift["loss"][k] != push["loss"][k]}
+    assert differing == {"reward_scale_momentum", "gp_coef"}
+    assert {k for k in lift["train"] if lift["train"][k] != push["train"][k]} == {"env"}
