@@ -1,5 +1,5 @@
-"""``python -m torchrl_mpail2.diagnostics {plan_pictures,lift_phases,held_plans,critic_profile} CKPT [...]``: the diagnostics'
-command line."""
+"""``python -m torchrl_mpail2.diagnostics {plan_pictures,lift_phases,held_plans,critic_profile} CKPT [...]``: the
+diagnostics' command line."""
 import sys
 
 from torchrl_mpail2.diagnostics import critic_profile, held_plans, lift_phases, plan_pictures

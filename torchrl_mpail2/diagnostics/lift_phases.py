@@ -36,7 +36,8 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["grasped_without_success", "held_states", "lift_phases", "play_lift_episodes", "summarize_phases", "use_planner_settings"]
+__all__ = ["grasped_without_success", "held_states", "lift_phases", "play_lift_episodes", "summarize_phases",
+           "use_planner_settings"]
 
 REACH_M = 0.02
 #: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
