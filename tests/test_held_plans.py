@@ -4,7 +4,8 @@ import torch
 
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
-from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, score_held_states,
+from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, fit_height_probe,
+                                                   imagined_straight_lift, score_held_states,
                                                    straight_lift_from_held_states)
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 from torchrl_mpail2.envs import make_env
@@ -39,6 +40,9 @@ def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
         assert row["states"] == int(held.sum())
         assert list(row["mean_return"]) == [str(v) for v in VERTICAL]
         assert 0.0 <= row["up_beats_down"] <= 1.0
+        for v in VERTICAL:  # the return is its reward sum plus its terminal value
+            parts = row["mean_reward_sum"][str(v)] + row["mean_terminal"][str(v)]
+            assert parts == pytest.approx(row["mean_return"][str(v)], abs=2e-3)
         assert row["taken_z_mean"] > 0  # the expert carries the cube up while holding it
     assert groups["succeeded"]["mean_return"] == groups["grasped_without_success"]["mean_return"]
     idle = lift.rollout(5, lambda td: td.set("action", torch.zeros(4)))
@@ -49,6 +53,18 @@ def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
     assert lifts["succeeded"]["tested"] == len(range(0, int(held_states(rollout).sum()), 15))
     assert lifts["succeeded"]["replay_exact"] == 1.0 and lifts["succeeded"]["lifted"] >= 0.5, lifts
     assert lifts["grasped_without_success"] == lifts["succeeded"]  # same episode, only its label differs
+    rise = lifts["succeeded"]
+    assert len(rise["cube_rise_cm"]) == len(rise["hand_rise_cm"]) == 15
+    assert rise["hand_rise_cm"][-1] > 5.0 and rise["cube_rise_cm"][-1] > 2.0, rise  # the held cube goes up too
+
+    # the dynamics' forecast of the same lifts, read back by a probe of the latents, one row per tested state
+    probe, stats = fit_height_probe(agent, [rollout])
+    assert stats["pairs"] == len(rollout) and stats["held_out_mae_cm"] >= 0
+    imagined = imagined_straight_lift(agent, probe, [rollout, failed], every=15)
+    for name, row in imagined.items():
+        assert row["tested"] == lifts[name]["tested"]
+        assert len(row["cube_rise_cm"]) == len(row["hand_rise_cm"]) == model.horizon
+    assert imagined_straight_lift(agent, probe, [idle]) == {}
     with pytest.raises(ValueError, match="2 seeds, 1 rollouts"):
         straight_lift_from_held_states(lift, [0, 0], [rollout])
     lift.close()

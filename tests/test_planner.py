@@ -212,6 +212,10 @@ def test_terminal_value_forms_score_by_hand(terminal_value):
         expected = r[0] + 0.5 * r[1] + 0.25 * (latents[1].sum() + 10 * plan[0, 2].sum())
     assert returns.shape == (1, 1)
     assert returns.item() == pytest.approx(expected.item(), rel=1e-5)
+    rewards, terminal = planner.score_parts(z, plan.unsqueeze(1), torch.tensor([0, 1]))
+    rewarded = r[0] + 0.5 * r[1] + (0.25 * r[2] if terminal_value == "policy_action" else 0.0)
+    assert rewards.item() == pytest.approx(rewarded.item(), rel=1e-5)
+    assert terminal.item() == pytest.approx((expected - rewarded).item(), rel=1e-5, abs=1e-6)
 
 
 def test_effective_number_of_elites_is_logged_between_one_and_k():

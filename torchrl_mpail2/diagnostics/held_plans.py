@@ -16,6 +16,14 @@ each episode is reached again by replaying the episode's actions from its seeded
 (``replay_exact``: the share whose replayed observation equals the recorded one), then the hand is commanded
 straight up with the gripper closing for ``--lift-steps`` steps; ``lifted`` is the share of those that reach the
 task's success. A model that scores down above up where a straight lift succeeds is wrong there.
+
+Which part of the model is wrong is split three ways: each plan's return is reported as its discounted reward sum
+and its discounted terminal value apart (``mean_reward_sum``, ``mean_terminal``, and ``up_beats_down`` of each);
+and the latent dynamics' own forecast of the straight lift is read back with a :class:`~torchrl_mpail2.diagnostics.
+latent_probe.LatentProbe` fitted from encoded latents to the cube's and the hand's heights on the played episodes
+(``imagined``: the decoded rise, in cm, after each of the H imagined steps of the z = +1 plan, from the same
+states the straight lift starts from, next to the rise the simulator gave). Dynamics whose imagined hand rises
+while their imagined cube stays on the table cannot value a lift, whatever the reward.
 """
 from __future__ import annotations
 
@@ -29,7 +37,8 @@ from torchrl.envs.utils import step_mdp
 
 from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
 
-__all__ = ["VERTICAL", "constant_vertical_plans", "score_held_states", "straight_lift_from_held_states"]
+__all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
+           "straight_lift_from_held_states"]
 
 #: Vertical commands scored (fractions of a full step; robosuite's z points up).
 VERTICAL = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -48,22 +57,31 @@ def constant_vertical_plans(horizon: int, action_dim: int, vertical=VERTICAL) ->
     return plans
 
 
-def _group_rows(returns: np.ndarray, taken_z: np.ndarray, vertical) -> dict:
+def _group_rows(rewards: np.ndarray, terminal: np.ndarray, taken_z: np.ndarray, vertical) -> dict:
     up, down = vertical.index(1.0), vertical.index(-1.0)
-    return {"states": int(len(returns)),
-            "mean_return": {str(v): round(float(returns[:, i].mean()), 3) for i, v in enumerate(vertical)},
-            "up_beats_down": round(float((returns[:, up] > returns[:, down]).mean()), 3),
+
+    def by_z(values):
+        return {str(v): round(float(values[:, i].mean()), 3) for i, v in enumerate(vertical)}
+
+    def up_wins(values):
+        return round(float((values[:, up] > values[:, down]).mean()), 3)
+
+    returns = rewards + terminal
+    return {"states": int(len(returns)), "mean_return": by_z(returns), "up_beats_down": up_wins(returns),
+            "mean_reward_sum": by_z(rewards), "up_beats_down_reward_sum": up_wins(rewards),
+            "mean_terminal": by_z(terminal), "up_beats_down_terminal": up_wins(terminal),
             "taken_z_mean": round(float(taken_z.mean()), 3)}
 
 
 def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
     """The planner's returns of :func:`constant_vertical_plans` at the held states of ``rollouts`` (each the
     ``[T]`` rollout of one Lift episode in ``"state"`` mode), over every Q head, grouped by the episode's outcome
-    -> ``{"succeeded": row, "grasped_without_success": row}`` (a group without held states is left out)."""
+    -> ``{"succeeded": row, "grasped_without_success": row}`` (a group without held states is left out); each row
+    gives the return, and its reward sum and terminal value apart, per vertical command."""
     planner, encoder = agent.planner, agent.modules.encoder
     plans = constant_vertical_plans(planner.horizon, planner.action_dim, vertical)
     heads = torch.arange(agent.modules.value.net.num_q)
-    groups: dict[str, tuple[list, list]] = {"succeeded": ([], []), "grasped_without_success": ([], [])}
+    groups: dict[str, tuple[list, list, list]] = {"succeeded": ([], [], []), "grasped_without_success": ([], [], [])}
     with torch.inference_mode():
         for rollout in rollouts:
             held = held_states(rollout)[:-1]  # the last state has no action taken in it
@@ -71,13 +89,70 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
                 continue
             states = rollout["next"][:-1][torch.as_tensor(held)].select(*encoder.in_keys)
             z = encoder.encode(states)
-            returns = planner.score(z, plans.unsqueeze(0).expand(len(z), *plans.shape).to(z.dtype), heads)
+            rewards, terminal = planner.score_parts(
+                z, plans.unsqueeze(0).expand(len(z), *plans.shape).to(z.dtype), heads)
             taken_z = rollout["action"][1:][torch.as_tensor(held)][:, 2]
             bucket = groups[_outcome(rollout)]
-            bucket[0].append(returns.float().numpy())
-            bucket[1].append(taken_z.float().numpy())
-    return {name: _group_rows(np.concatenate(r), np.concatenate(z), list(vertical))
-            for name, (r, z) in groups.items() if r}
+            bucket[0].append(rewards.float().numpy())
+            bucket[1].append(terminal.float().numpy())
+            bucket[2].append(taken_z.float().numpy())
+    return {name: _group_rows(np.concatenate(r), np.concatenate(q), np.concatenate(z), list(vertical))
+            for name, (r, q, z) in groups.items() if r}
+
+
+def _heights(obj: torch.Tensor) -> torch.Tensor:
+    """``[*B, 2]``: the cube's and the end effector's heights (m) from the ``"object"`` observation."""
+    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+
+    return torch.stack([obj[..., 2], obj[..., 2] + obj[..., OBJECT_EEF_TO_CUBE][..., 2]], dim=-1)
+
+
+def _tested_steps(rollout, every: int) -> np.ndarray:
+    """The held steps a straight lift starts from: every ``every``-th one."""
+    return np.flatnonzero(held_states(rollout))[::every]
+
+
+def fit_height_probe(agent, rollouts: list, seed: int = 0) -> tuple:
+    """A :class:`~torchrl_mpail2.diagnostics.latent_probe.LatentProbe` from the encoder's latents of every
+    ``("next", ...)`` state of ``rollouts`` to the cube's and the hand's heights -> ``(probe, stats)`` (stats in cm)."""
+    from torchrl_mpail2.diagnostics.latent_probe import fit_latent_probe
+
+    encoder = agent.modules.encoder
+    states = torch.cat([rollout["next"].select(*encoder.in_keys) for rollout in rollouts])
+    with torch.inference_mode():
+        z = encoder.encode(states).float()
+    heights = torch.cat([_heights(rollout["next", "object"].float()) for rollout in rollouts])
+    probe, stats = fit_latent_probe(z.clone(), heights.clone(), seed=seed)  # clones: trainable, not inference
+    return probe, {"pairs": int(len(z)), "held_out_r2": round(stats["held_out_r2"], 3),
+                   "held_out_mae_cm": round(stats["held_out_mae"] * 100, 2)}
+
+
+def imagined_straight_lift(agent, probe, rollouts: list, every: int = 10) -> dict:
+    """The latent dynamics' forecast of the straight lift (the ``z = +1`` plan of :func:`constant_vertical_plans`,
+    H steps, float32 networks) from the states :func:`straight_lift_from_held_states` starts from, read back by
+    ``probe`` (:func:`fit_height_probe`) -> per outcome group ``{"tested", "cube_rise_cm", "hand_rise_cm"}``: the
+    mean decoded rise after each imagined step, relative to the decoded start."""
+    encoder, dynamics = agent.modules.encoder, agent.modules.dynamics.module
+    plan = constant_vertical_plans(agent.planner.horizon, agent.planner.action_dim, (1.0,))[0]
+    groups: dict[str, list[torch.Tensor]] = {}
+    with torch.inference_mode():
+        for rollout in rollouts:
+            steps = _tested_steps(rollout, every)
+            if not len(steps):
+                continue
+            zk = encoder.encode(rollout["next"][torch.as_tensor(steps)].select(*encoder.in_keys)).float()
+            start, rises = probe(zk), []
+            for action in plan:
+                zk = dynamics(zk, action.expand(len(zk), -1))
+                rises.append(probe(zk) - start)
+            groups.setdefault(_outcome(rollout), []).append(torch.stack(rises, dim=1))  # [N, H, 2]
+    result = {}
+    for name, parts in groups.items():
+        mean_cm = torch.cat(parts).mean(0) * 100
+        result[name] = {"tested": int(sum(len(p) for p in parts)),
+                        "cube_rise_cm": [round(float(v), 2) for v in mean_cm[:, 0]],
+                        "hand_rise_cm": [round(float(v), 2) for v in mean_cm[:, 1]]}
+    return result
 
 
 def _outcome(rollout) -> str:
@@ -89,15 +164,16 @@ def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every:
                                    lift_steps: int = 20) -> dict:
     """From every ``every``-th held state of each rollout (``rollouts[i]`` played from ``env.set_seed(seeds[i])``
     and a reset), replays the recorded actions to that state, then commands ``[0, 0, +1, closing]`` for
-    ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)."""
+    ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)
+    and ``"cube_rise_cm"`` / ``"hand_rise_cm"``: the mean rise above the start after each lift step (an episode that
+    ends early keeps its last height)."""
     if len(seeds) != len(rollouts):
         raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
     if every < 1 or lift_steps < 1:
         raise ValueError(f"every and lift_steps must be >= 1, got {every} and {lift_steps}")
-    groups: dict[str, list[tuple[bool, bool]]] = {}
+    groups: dict[str, list[tuple[bool, bool, np.ndarray]]] = {}
     for seed, rollout in zip(seeds, rollouts):
-        held = np.flatnonzero(held_states(rollout))
-        for t in held[::every]:
+        for t in _tested_steps(rollout, every):
             env.set_seed(seed)
             td = env.reset()
             for k in range(t + 1):  # after step t the state is rollout["next"][t]
@@ -105,16 +181,24 @@ def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every:
             exact = bool(torch.equal(td["object"], rollout["next", "object"][t]))
             lift = torch.zeros_like(rollout["action"][0])
             lift[2], lift[3] = 1.0, GRIPPER_CLOSING
-            lifted = False
+            lifted, start, rises = False, _heights(td["object"].float()), []
             for _ in range(lift_steps):
                 stepped = env.step(td.set("action", lift.clone()))
                 lifted = lifted or bool(stepped["next", "success"].any())
+                rises.append((_heights(stepped["next", "object"].float()) - start).numpy())
                 if bool(stepped["next", "done"].any()):
                     break
                 td = step_mdp(stepped)
-            groups.setdefault(_outcome(rollout), []).append((lifted, exact))
-    return {name: {"tested": len(rows), "lifted": round(float(np.mean([r[0] for r in rows])), 3),
-                   "replay_exact": round(float(np.mean([r[1] for r in rows])), 3)} for name, rows in groups.items()}
+            rises += rises[-1:] * (lift_steps - len(rises))
+            groups.setdefault(_outcome(rollout), []).append((lifted, exact, np.stack(rises)))
+    result = {}
+    for name, rows in groups.items():
+        rise_cm = np.mean([r[2] for r in rows], axis=0) * 100
+        result[name] = {"tested": len(rows), "lifted": round(float(np.mean([r[0] for r in rows])), 3),
+                        "replay_exact": round(float(np.mean([r[1] for r in rows])), 3),
+                        "cube_rise_cm": [round(float(v), 2) for v in rise_cm[:, 0]],
+                        "hand_rise_cm": [round(float(v), 2) for v in rise_cm[:, 1]]}
+    return result
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -138,18 +222,27 @@ def main(argv: list[str] | None = None) -> None:
         lifts = straight_lift_from_held_states(env, evaluation_seeds(run_eval_seed(train), args.episodes), rollouts,
                                                args.every, args.lift_steps)
         env.close()
+        probe, probe_stats = fit_height_probe(agent, rollouts)
         result = {"checkpoint": str(path), "episodes": args.episodes, "vertical": list(VERTICAL),
                   "every": args.every, "lift_steps": args.lift_steps,
-                  "groups": score_held_states(agent, rollouts), "straight_lift": lifts}
+                  "groups": score_held_states(agent, rollouts), "straight_lift": lifts,
+                  "height_probe": probe_stats, "imagined": imagined_straight_lift(agent, probe, rollouts, args.every)}
         results.append(result)
         print(path)
         for name, row in result["groups"].items():
-            returns = " ".join(f"{v}: {r:.2f}" for v, r in row["mean_return"].items())
-            print(f"  {name:24s} {row['states']:4d} held states  return by z [{returns}]  up beats down "
-                  f"{row['up_beats_down']:.2f}  z taken {row['taken_z_mean']:+.2f}", flush=True)
+            print(f"  {name:24s} {row['states']:4d} held states, z taken {row['taken_z_mean']:+.2f}", flush=True)
+            for part, wins in (("return", "up_beats_down"), ("reward_sum", "up_beats_down_reward_sum"),
+                               ("terminal", "up_beats_down_terminal")):
+                by_z = " ".join(f"{v}: {r:.2f}" for v, r in row[f"mean_{part}"].items())
+                print(f"    {part:10s} by z [{by_z}]  up beats down {row[wins]:.2f}", flush=True)
+        horizon = min(agent.planner.horizon, args.lift_steps)  # compare after as many steps as both have
+        print(f"  height probe: {result['height_probe']}")
         for name, row in result["straight_lift"].items():
+            imagined = result["imagined"][name]
             print(f"  {name:24s} straight lift from {row['tested']} held states: lifted {row['lifted']:.2f} "
-                  f"(replayed exactly: {row['replay_exact']:.2f})", flush=True)
+                  f"(replayed exactly: {row['replay_exact']:.2f}); after {horizon} steps cube / hand rose "
+                  f"{row['cube_rise_cm'][horizon - 1]:.1f} / {row['hand_rise_cm'][horizon - 1]:.1f} cm, imagined "
+                  f"{imagined['cube_rise_cm'][horizon - 1]:.1f} / {imagined['hand_rise_cm'][horizon - 1]:.1f} cm", flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")

@@ -158,6 +158,12 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
         The networks run in ``z``'s dtype (bfloat16 in the ``bf16`` mode); the return is summed in float32.
         """
+        rewards, terminal = self.score_parts(z, plans, heads)
+        return rewards + terminal
+
+    def score_parts(self, z: Tensor, plans: Tensor, heads: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`score`'s two terms apart -> ``(discounted reward sum, discounted terminal value)``, each
+        ``[B, C]`` float32."""
         m, cfg = self.components, self.cfg
         batch, num = plans.shape[:2]
         dynamics, reward = m.dynamics.module, m.reward.module
@@ -178,7 +184,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         else:
             last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
-        return (total + self.gamma ** rewarded * q).view(batch, num)
+        return total.view(batch, num), (self.gamma ** rewarded * q).view(batch, num)
 
     def _scorer(self):
         """:meth:`score`, compiled on first use with ``cfg.compile`` (kept out of the module's attributes, so the
