@@ -6,7 +6,7 @@ from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
 from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, fit_height_probe,
                                                    imagined_straight_lift, score_held_states,
-                                                   straight_lift_from_held_states)
+                                                   simulated_plan_returns, straight_lift_from_held_states)
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
@@ -65,6 +65,15 @@ def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
         assert row["tested"] == lifts[name]["tested"]
         assert len(row["cube_rise_cm"]) == len(row["hand_rise_cm"]) == model.horizon
     assert imagined_straight_lift(agent, probe, [idle]) == {}
+
+    # the same plans played in the simulator and scored on their encoded observations
+    simulated = simulated_plan_returns(lift, agent, [0, 0], [rollout, failed], every=15)
+    for name, row in simulated.items():
+        assert row["states"] == lifts[name]["tested"]
+        assert list(row["mean_return"]) == ["-1.0", "0.0", "1.0"]
+        parts = row["mean_reward_sum"]["1.0"] + row["mean_terminal"]["1.0"]
+        assert parts == pytest.approx(row["mean_return"]["1.0"], abs=2e-3)
+    assert simulated["succeeded"] == simulated["grasped_without_success"]
     with pytest.raises(ValueError, match="2 seeds, 1 rollouts"):
         straight_lift_from_held_states(lift, [0, 0], [rollout])
     lift.close()

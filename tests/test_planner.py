@@ -216,6 +216,10 @@ def test_terminal_value_forms_score_by_hand(terminal_value):
     rewarded = r[0] + 0.5 * r[1] + (0.25 * r[2] if terminal_value == "policy_action" else 0.0)
     assert rewards.item() == pytest.approx(rewarded.item(), rel=1e-5)
     assert terminal.item() == pytest.approx((expected - rewarded).item(), rel=1e-5, abs=1e-6)
+    # the same return read off the latent path itself
+    path = torch.cat([z, latents]).unsqueeze(0)  # [B=1, H + 1, Z]
+    on_path = planner.path_return_parts(path, plan, torch.tensor([0, 1]))
+    assert [p.item() for p in on_path] == pytest.approx([rewards.item(), terminal.item()], rel=1e-5, abs=1e-6)
 
 
 def test_effective_number_of_elites_is_logged_between_one_and_k():

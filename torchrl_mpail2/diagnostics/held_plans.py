@@ -23,7 +23,10 @@ and the latent dynamics' own forecast of the straight lift is read back with a :
 latent_probe.LatentProbe` fitted from encoded latents to the cube's and the hand's heights on the played episodes
 (``imagined``: the decoded rise, in cm, after each of the H imagined steps of the z = +1 plan, from the same
 states the straight lift starts from, next to the rise the simulator gave). Dynamics whose imagined hand rises
-while their imagined cube stays on the table cannot value a lift, whatever the reward.
+while their imagined cube stays on the table cannot value a lift, whatever the reward. And the reward and value are
+read on what really happens (``simulated``): z = -1, 0 and +1 played in the simulator for H steps from those states,
+their encoded observations scored as the planner scores an imagined path. Up beating down there but not in
+imagination points at the dynamics; down beating up on the simulator's own outcome points at the reward or value.
 """
 from __future__ import annotations
 
@@ -38,7 +41,7 @@ from torchrl.envs.utils import step_mdp
 from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
-           "straight_lift_from_held_states"]
+           "simulated_plan_returns", "straight_lift_from_held_states"]
 
 #: Vertical commands scored (fractions of a full step; robosuite's z points up).
 VERTICAL = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -160,6 +163,30 @@ def _outcome(rollout) -> str:
     return "succeeded" if succeeded else "grasped_without_success"
 
 
+def _replay_to(env, seed: int, rollout, t: int) -> tuple:
+    """Replays ``rollout``'s actions from ``env.set_seed(seed)`` and a reset to the state after step ``t``
+    -> ``(tensordict there, whether its observation equals the recorded one)``."""
+    env.set_seed(seed)
+    td = env.reset()
+    for k in range(t + 1):  # after step t the state is rollout["next"][t]
+        td = step_mdp(env.step(td.set("action", rollout["action"][k].clone())))
+    return td, bool(torch.equal(td["object"], rollout["next", "object"][t]))
+
+
+def _hold(env, td, action: torch.Tensor, steps: int) -> tuple[list, bool]:
+    """Steps ``action`` ``steps`` times from ``td`` (fewer if the episode ends) -> ``(the observations after each
+    step, whether the task succeeded on the way)``."""
+    after, succeeded = [], False
+    for _ in range(steps):
+        stepped = env.step(td.set("action", action.clone()))
+        after.append(stepped["next"])
+        succeeded = succeeded or bool(stepped["next", "success"].any())
+        if bool(stepped["next", "done"].any()):
+            break
+        td = step_mdp(stepped)
+    return after, succeeded
+
+
 def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every: int = 10,
                                    lift_steps: int = 20) -> dict:
     """From every ``every``-th held state of each rollout (``rollouts[i]`` played from ``env.set_seed(seeds[i])``
@@ -167,28 +194,15 @@ def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every:
     ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)
     and ``"cube_rise_cm"`` / ``"hand_rise_cm"``: the mean rise above the start after each lift step (an episode that
     ends early keeps its last height)."""
-    if len(seeds) != len(rollouts):
-        raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
-    if every < 1 or lift_steps < 1:
-        raise ValueError(f"every and lift_steps must be >= 1, got {every} and {lift_steps}")
+    _check_replay_args(seeds, rollouts, every, lift_steps)
+    lift = constant_vertical_plans(1, 4, (1.0,))[0, 0]
     groups: dict[str, list[tuple[bool, bool, np.ndarray]]] = {}
     for seed, rollout in zip(seeds, rollouts):
         for t in _tested_steps(rollout, every):
-            env.set_seed(seed)
-            td = env.reset()
-            for k in range(t + 1):  # after step t the state is rollout["next"][t]
-                td = step_mdp(env.step(td.set("action", rollout["action"][k].clone())))
-            exact = bool(torch.equal(td["object"], rollout["next", "object"][t]))
-            lift = torch.zeros_like(rollout["action"][0])
-            lift[2], lift[3] = 1.0, GRIPPER_CLOSING
-            lifted, start, rises = False, _heights(td["object"].float()), []
-            for _ in range(lift_steps):
-                stepped = env.step(td.set("action", lift.clone()))
-                lifted = lifted or bool(stepped["next", "success"].any())
-                rises.append((_heights(stepped["next", "object"].float()) - start).numpy())
-                if bool(stepped["next", "done"].any()):
-                    break
-                td = step_mdp(stepped)
+            td, exact = _replay_to(env, seed, rollout, t)
+            after, lifted = _hold(env, td, lift.to(rollout["action"].dtype), lift_steps)
+            start = _heights(td["object"].float())
+            rises = [(_heights(obs["object"].float()) - start).numpy() for obs in after]
             rises += rises[-1:] * (lift_steps - len(rises))
             groups.setdefault(_outcome(rollout), []).append((lifted, exact, np.stack(rises)))
     result = {}
@@ -199,6 +213,56 @@ def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every:
                         "cube_rise_cm": [round(float(v), 2) for v in rise_cm[:, 0]],
                         "hand_rise_cm": [round(float(v), 2) for v in rise_cm[:, 1]]}
     return result
+
+
+def _check_replay_args(seeds, rollouts, every, steps) -> None:
+    if len(seeds) != len(rollouts):
+        raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
+    if every < 1 or steps < 1:
+        raise ValueError(f"every and the steps played must be >= 1, got {every} and {steps}")
+
+
+def simulated_plan_returns(env, agent, seeds: list[int], rollouts: list, every: int = 10,
+                           vertical=(-1.0, 0.0, 1.0)) -> dict:
+    """The learned reward and value on what the simulator does: from the same held states as
+    :func:`straight_lift_from_held_states`, each constant plan of :func:`constant_vertical_plans` is played in
+    ``env`` for H steps, the observations are encoded, and the planner's return of that latent path
+    (:meth:`~torchrl_mpail2.planners.LatentMPPIPlanner.path_return_parts`, every Q head) is taken in place of the
+    imagined one -> per outcome group a row as :func:`score_held_states` gives (``taken_z_mean`` left out; a plan
+    cut short by the episode's end is left out of every command at that state)."""
+    planner, encoder = agent.planner, agent.modules.encoder
+    _check_replay_args(seeds, rollouts, every, planner.horizon)
+    plans = constant_vertical_plans(planner.horizon, planner.action_dim, vertical)
+    heads = torch.arange(agent.modules.value.net.num_q)
+    groups: dict[str, tuple[list, list]] = {}
+    for seed, rollout in zip(seeds, rollouts):
+        for t in _tested_steps(rollout, every):
+            paths = []
+            for plan in plans:
+                td, _ = _replay_to(env, seed, rollout, t)
+                after, _ = _hold(env, td, plan[0].to(rollout["action"].dtype), planner.horizon)
+                paths.append(torch.stack([td.select(*encoder.in_keys)] + [o.select(*encoder.in_keys) for o in after]))
+            if any(len(path) < planner.horizon + 1 for path in paths):
+                continue
+            with torch.inference_mode():
+                latents = encoder.encode(torch.stack(paths)).float()  # [len(vertical), H + 1, Z]
+                rewards, terminal = planner.path_return_parts(latents, plans, heads)
+            bucket = groups.setdefault(_outcome(rollout), ([], []))
+            bucket[0].append(rewards.numpy())
+            bucket[1].append(terminal.numpy())
+    result = {}
+    for name, (rewards, terminal) in groups.items():
+        row = _group_rows(np.stack(rewards), np.stack(terminal), np.zeros(1), list(vertical))
+        row.pop("taken_z_mean")
+        result[name] = row
+    return result
+
+
+def _print_parts(row: dict) -> None:
+    for part, wins in (("return", "up_beats_down"), ("reward_sum", "up_beats_down_reward_sum"),
+                       ("terminal", "up_beats_down_terminal")):
+        by_z = " ".join(f"{v}: {r:.2f}" for v, r in row[f"mean_{part}"].items())
+        print(f"    {part:10s} by z [{by_z}]  up beats down {row[wins]:.2f}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -219,22 +283,24 @@ def main(argv: list[str] | None = None) -> None:
         agent, rollouts = play_lift_episodes(path, args.episodes)
         train = agent.run_config["train"]
         env = evaluation_env(train)
-        lifts = straight_lift_from_held_states(env, evaluation_seeds(run_eval_seed(train), args.episodes), rollouts,
-                                               args.every, args.lift_steps)
+        seeds = evaluation_seeds(run_eval_seed(train), args.episodes)
+        lifts = straight_lift_from_held_states(env, seeds, rollouts, args.every, args.lift_steps)
+        simulated = simulated_plan_returns(env, agent, seeds, rollouts, args.every)
         env.close()
         probe, probe_stats = fit_height_probe(agent, rollouts)
         result = {"checkpoint": str(path), "episodes": args.episodes, "vertical": list(VERTICAL),
                   "every": args.every, "lift_steps": args.lift_steps,
                   "groups": score_held_states(agent, rollouts), "straight_lift": lifts,
-                  "height_probe": probe_stats, "imagined": imagined_straight_lift(agent, probe, rollouts, args.every)}
+                  "height_probe": probe_stats, "imagined": imagined_straight_lift(agent, probe, rollouts, args.every),
+                  "simulated": simulated}
         results.append(result)
         print(path)
         for name, row in result["groups"].items():
             print(f"  {name:24s} {row['states']:4d} held states, z taken {row['taken_z_mean']:+.2f}", flush=True)
-            for part, wins in (("return", "up_beats_down"), ("reward_sum", "up_beats_down_reward_sum"),
-                               ("terminal", "up_beats_down_terminal")):
-                by_z = " ".join(f"{v}: {r:.2f}" for v, r in row[f"mean_{part}"].items())
-                print(f"    {part:10s} by z [{by_z}]  up beats down {row[wins]:.2f}", flush=True)
+            _print_parts(row)
+        for name, row in result["simulated"].items():
+            print(f"  {name:24s} the same plans played in the simulator from {row['states']} held states:")
+            _print_parts(row)
         horizon = min(agent.planner.horizon, args.lift_steps)  # compare after as many steps as both have
         print(f"  height probe: {result['height_probe']}")
         for name, row in result["straight_lift"].items():

@@ -164,18 +164,34 @@ class LatentMPPIPlanner(MPCPlannerBase):
     def score_parts(self, z: Tensor, plans: Tensor, heads: Tensor) -> tuple[Tensor, Tensor]:
         """:meth:`score`'s two terms apart -> ``(discounted reward sum, discounted terminal value)``, each
         ``[B, C]`` float32."""
-        m, cfg = self.components, self.cfg
         batch, num = plans.shape[:2]
-        dynamics, reward = m.dynamics.module, m.reward.module
-        h_now0, _ = reward.project(z)  # the start latent is shared by all candidates: project it once
-        h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         actions = plans.to(z.dtype).reshape(batch * num, self.horizon, self.action_dim)
-        total = torch.zeros(batch * num, dtype=torch.float32, device=z.device)
+        dynamics = self.components.dynamics.module
+        h_now0, _ = self.components.reward.module.project(z)  # the start is shared by all candidates: project once
+        h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
+        rewards, terminal = self._return_parts(zk, h_now, actions, heads, lambda k, zk: dynamics(zk, actions[:, k]))
+        return rewards.view(batch, num), terminal.view(batch, num)
+
+    def path_return_parts(self, latents: Tensor, actions: Tensor, heads: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`score_parts` of a given latent path instead of an imagined one: ``latents [B, H + 1, Z]`` (e.g. the
+        encoded observations of a trajectory the simulator played with ``actions [B, H, A]``) -> ``([B], [B])``.
+        What the learned reward and value make of a real outcome, next to what they make of the imagined one."""
+        h_now, _ = self.components.reward.module.project(latents[:, 0])
+        return self._return_parts(latents[:, 0], h_now, actions.to(latents.dtype), heads,
+                                  lambda k, zk: latents[:, k + 1])
+
+    def _return_parts(self, zk: Tensor, h_now: Tensor, actions: Tensor, heads: Tensor,
+                      next_latent) -> tuple[Tensor, Tensor]:
+        """Algorithm 2's return of ``actions [N, H, A]`` from ``zk [N, Z]`` (``h_now``: its reward projection), the
+        latents after each step given by ``next_latent(k, z_k)``."""
+        m, cfg = self.components, self.cfg
+        reward = m.reward.module
+        total = torch.zeros(zk.shape[0], dtype=torch.float32, device=zk.device)
         # with the plan's own last action scoring the end, the last reward is left to Q
         rewarded = self.horizon - (cfg.terminal_value == "plan_last_action")
         for k in range(rewarded):
-            zk = dynamics(zk, actions[:, k])
+            zk = next_latent(k, zk)
             h_now_next, h_next = reward.project(zk)
             total = total + self.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
             h_now = h_now_next
@@ -184,7 +200,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         else:
             last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
         q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
-        return total.view(batch, num), (self.gamma ** rewarded * q).view(batch, num)
+        return total, self.gamma ** rewarded * q
 
     def _scorer(self):
         """:meth:`score`, compiled on first use with ``cfg.compile`` (kept out of the module's attributes, so the
