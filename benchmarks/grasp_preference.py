@@ -27,7 +27,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from evaluate_checkpoints import RESULTS, numbered_checkpoints, run_env
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE, chain_rewards, rollout_latents
+from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
 GRIPPER = -1  # the gripper command is the last action dimension
@@ -50,15 +50,12 @@ def preference(agent: MPAIL2Agent, states: TensorDict) -> dict:
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         plan = planner(states.clone())["plan"]
     z = agent.modules.encoder.encode(states)
-    m, horizon = agent.modules, plan.shape[-2]
-    discounts = planner.gamma ** torch.arange(horizon, dtype=z.dtype)
     returns, rewards = {}, {}
     for command in (1.0, -1.0):
         held = plan.clone()
         held[..., GRIPPER] = command
-        returns[command] = planner.score(z, held.unsqueeze(1), heads).squeeze(1)
-        latents = rollout_latents(m.dynamics.module, z, held)
-        rewards[command] = (discounts[:, None] * chain_rewards(m.reward.module, latents)).sum(0)
+        reward_part, terminal_part = planner.score_parts(z, held.unsqueeze(1), heads)
+        returns[command], rewards[command] = (reward_part + terminal_part).squeeze(1), reward_part.squeeze(1)
     difference = returns[1.0] - returns[-1.0]
     reward_difference = rewards[1.0] - rewards[-1.0]
     quartiles = torch.quantile(plan[:, 0, GRIPPER], torch.tensor([0.25, 0.5, 0.75]))

@@ -6,7 +6,8 @@ from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
 from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, fit_height_probe,
                                                    imagined_straight_lift, score_held_states,
-                                                   simulated_plan_returns, straight_lift_from_held_states)
+                                                   simulated_plan_returns, straight_lift_from_held_states,
+                                                   value_by_rise)
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
@@ -74,6 +75,14 @@ def test_held_states_are_scored_and_grouped_by_the_episode_outcome():
         parts = row["mean_reward_sum"]["1.0"] + row["mean_terminal"]["1.0"]
         assert parts == pytest.approx(row["mean_return"]["1.0"], abs=2e-3)
     assert simulated["succeeded"] == simulated["grasped_without_success"]
+
+    # the value and reward at the held states by the cube's rise: the expert holds it at the table and carries it up
+    by_rise = value_by_rise(agent, [rollout, failed])
+    assert by_rise["succeeded"] == by_rise["grasped_without_success"]
+    bins = by_rise["succeeded"]
+    assert sum(row["states"] for row in bins.values()) == int(held.sum())
+    assert "-inf..0.5 cm" in bins and "8..inf cm" in bins, list(bins)
+    assert value_by_rise(agent, [idle]) == {}
     with pytest.raises(ValueError, match="2 seeds, 1 rollouts"):
         straight_lift_from_held_states(lift, [0, 0], [rollout])
     lift.close()

@@ -27,6 +27,8 @@ while their imagined cube stays on the table cannot value a lift, whatever the r
 read on what really happens (``simulated``): z = -1, 0 and +1 played in the simulator for H steps from those states,
 their encoded observations scored as the planner scores an imagined path. Up beating down there but not in
 imagination points at the dynamics; down beating up on the simulator's own outcome points at the reward or value.
+``value_by_rise`` gives the value and the reward at the held states of the played episodes by the cube's height: what
+the value rates on the agent's own path, next to what it rates after a straight lift.
 """
 from __future__ import annotations
 
@@ -41,7 +43,7 @@ from torchrl.envs.utils import step_mdp
 from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
-           "simulated_plan_returns", "straight_lift_from_held_states"]
+           "simulated_plan_returns", "straight_lift_from_held_states", "value_by_rise"]
 
 #: Vertical commands scored (fractions of a full step; robosuite's z points up).
 VERTICAL = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -101,6 +103,40 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
             bucket[2].append(taken_z.float().numpy())
     return {name: _group_rows(np.concatenate(r), np.concatenate(q), np.concatenate(z), list(vertical))
             for name, (r, q, z) in groups.items() if r}
+
+
+#: Bins of the cube's rise above its settled height (cm) for :func:`value_by_rise`.
+RISE_BINS_CM = (0.5, 1.0, 2.0, 4.0, 8.0)
+
+
+def value_by_rise(agent, rollouts: list) -> dict:
+    """The value of the policy's mean first action, :math:`Q(z, \pi(z))` (mean of every head), and the learned
+    reward of the step taken there, at the held states of ``rollouts``, by outcome group and by the cube's rise
+    above its settled height (bins :data:`RISE_BINS_CM`) -> ``{group: {"<a..b cm": {"states", "q", "reward"}}}``.
+    Which heights the value already rates well, on the agent's own path."""
+    from torchrl_mpail2.diagnostics.lift_phases import SETTLED_STEP
+
+    m, encoder = agent.modules, agent.modules.encoder
+    edges = (-np.inf, *RISE_BINS_CM, np.inf)
+    groups: dict[str, dict[str, list]] = {}
+    with torch.inference_mode():
+        for rollout in rollouts:
+            held = held_states(rollout)[:-1]  # the last state has no step taken from it
+            if not held.any():
+                continue
+            obj = rollout["next", "object"]
+            rise_cm = ((obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]) * 100).numpy()[:-1][held]
+            z = encoder.encode(rollout["next"].select(*encoder.in_keys)).float()
+            q = m.value.net(z, m.policy.net(z, deterministic=True)[0][:, 0]).squeeze(-1).mean(0)[:-1]
+            reward = m.reward.module(z[:-1], z[1:]).squeeze(-1)
+            bins = np.digitize(rise_cm, RISE_BINS_CM)
+            rows = groups.setdefault(_outcome(rollout), {})
+            for b, q_b, r_b in zip(bins, q[torch.as_tensor(held)].numpy(), reward[torch.as_tensor(held)].numpy()):
+                rows.setdefault(int(b), []).append((q_b, r_b))
+    return {name: {f"{edges[b]:g}..{edges[b + 1]:g} cm": {
+                "states": len(rows[b]), "q": round(float(np.mean([x[0] for x in rows[b]])), 2),
+                "reward": round(float(np.mean([x[1] for x in rows[b]])), 3)} for b in sorted(rows)}
+            for name, rows in groups.items()}
 
 
 def _heights(obj: torch.Tensor) -> torch.Tensor:
@@ -292,7 +328,7 @@ def main(argv: list[str] | None = None) -> None:
                   "every": args.every, "lift_steps": args.lift_steps,
                   "groups": score_held_states(agent, rollouts), "straight_lift": lifts,
                   "height_probe": probe_stats, "imagined": imagined_straight_lift(agent, probe, rollouts, args.every),
-                  "simulated": simulated}
+                  "simulated": simulated, "value_by_rise": value_by_rise(agent, rollouts)}
         results.append(result)
         print(path)
         for name, row in result["groups"].items():
@@ -301,6 +337,9 @@ def main(argv: list[str] | None = None) -> None:
         for name, row in result["simulated"].items():
             print(f"  {name:24s} the same plans played in the simulator from {row['states']} held states:")
             _print_parts(row)
+        for name, rows in result["value_by_rise"].items():
+            print(f"  {name:24s} Q(z, pi(z)) / reward at held states by the cube's rise: " + "  ".join(
+                f"{bin_}: {row['q']:.1f} / {row['reward']:.2f} ({row['states']})" for bin_, row in rows.items()))
         horizon = min(agent.planner.horizon, args.lift_steps)  # compare after as many steps as both have
         print(f"  height probe: {result['height_probe']}")
         for name, row in result["straight_lift"].items():
