@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrl_mpail2.diagnostics import held_plans
+from torchrl_mpail2.diagnostics.held_replays import episode_outcome, hold_action, replay_to, tested_steps
 from torchrl_mpail2.diagnostics.lift_phases import play_lift_episodes
 from torchrl_mpail2.trainers.evaluation import evaluation_env, evaluation_seeds, run_eval_seed
 
@@ -48,15 +48,15 @@ def probe(path: str, episodes: int, outcome: str) -> dict:
     encoder, horizon = agent.modules.encoder, agent.planner.horizon
     rows: dict[str, list[dict]] = {"start": [], **{key: [] for key in PLANS}}
     for seed, rollout in zip(evaluation_seeds(run_eval_seed(train), episodes), rollouts):
-        if (held_plans._outcome(rollout) == "succeeded") != (outcome == "succeeded"):
+        if (episode_outcome(rollout) == "succeeded") != (outcome == "succeeded"):
             continue
-        for t in held_plans._tested_steps(rollout, 10):
-            td, _ = held_plans._replay_to(env, seed, rollout, t)
+        for t in tested_steps(rollout, 10):
+            td, _ = replay_to(env, seed, rollout, t)
             with torch.inference_mode():
                 rows["start"].append(values_at(agent, encoder.encode(td.select(*encoder.in_keys).unsqueeze(0))))
             for key, action in PLANS.items():
-                td, _ = held_plans._replay_to(env, seed, rollout, t)
-                after, _ = held_plans._hold(env, td, torch.tensor(FIXED[action]), horizon)
+                td, _ = replay_to(env, seed, rollout, t)
+                after, _ = hold_action(env, td, torch.tensor(FIXED[action]), horizon)
                 if len(after) == horizon:
                     with torch.inference_mode():
                         z = encoder.encode(after[-1].select(*encoder.in_keys).unsqueeze(0))

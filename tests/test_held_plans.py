@@ -6,8 +6,8 @@ from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.config import ModelConfig, PlannerConfig
 from torchrl_mpail2.diagnostics.held_plans import (VERTICAL, constant_vertical_plans, fit_height_probe,
                                                    imagined_straight_lift, score_held_states,
-                                                   simulated_plan_returns, straight_lift_from_held_states,
-                                                   value_by_rise)
+                                                   simulated_plan_returns, value_by_rise)
+from torchrl_mpail2.diagnostics.held_replays import straight_lift_from_held_states
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert

@@ -38,17 +38,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torchrl.envs.utils import step_mdp
 
+from torchrl_mpail2.diagnostics.held_replays import (GRIPPER_CLOSING, check_replay_args, cube_and_hand_heights,
+                                                     episode_outcome, hold_action, replay_to,
+                                                     straight_lift_from_held_states, tested_steps)
 from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
-           "simulated_plan_returns", "straight_lift_from_held_states", "value_by_rise"]
+           "simulated_plan_returns", "value_by_rise"]
 
 #: Vertical commands scored (fractions of a full step; robosuite's z points up).
 VERTICAL = (-1.0, -0.5, 0.0, 0.5, 1.0)
-#: The gripper command of every scored plan: closing (robosuite's Panda gripper closes for positive commands).
-GRIPPER_CLOSING = 1.0
 
 
 def constant_vertical_plans(horizon: int, action_dim: int, vertical=VERTICAL) -> torch.Tensor:
@@ -97,7 +97,7 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
             rewards, terminal = planner.score_parts(
                 z, plans.unsqueeze(0).expand(len(z), *plans.shape).to(z.dtype), heads)
             taken_z = rollout["action"][1:][torch.as_tensor(held)][:, 2]
-            bucket = groups[_outcome(rollout)]
+            bucket = groups[episode_outcome(rollout)]
             bucket[0].append(rewards.float().numpy())
             bucket[1].append(terminal.float().numpy())
             bucket[2].append(taken_z.float().numpy())
@@ -130,25 +130,13 @@ def value_by_rise(agent, rollouts: list) -> dict:
             q = m.value.net(z, m.policy.net(z, deterministic=True)[0][:, 0]).squeeze(-1).mean(0)[:-1]
             reward = m.reward.module(z[:-1], z[1:]).squeeze(-1)
             bins = np.digitize(rise_cm, RISE_BINS_CM)
-            rows = groups.setdefault(_outcome(rollout), {})
+            rows = groups.setdefault(episode_outcome(rollout), {})
             for b, q_b, r_b in zip(bins, q[torch.as_tensor(held)].numpy(), reward[torch.as_tensor(held)].numpy()):
                 rows.setdefault(int(b), []).append((q_b, r_b))
     return {name: {f"{edges[b]:g}..{edges[b + 1]:g} cm": {
                 "states": len(rows[b]), "q": round(float(np.mean([x[0] for x in rows[b]])), 2),
                 "reward": round(float(np.mean([x[1] for x in rows[b]])), 3)} for b in sorted(rows)}
             for name, rows in groups.items()}
-
-
-def _heights(obj: torch.Tensor) -> torch.Tensor:
-    """``[*B, 2]``: the cube's and the end effector's heights (m) from the ``"object"`` observation."""
-    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
-
-    return torch.stack([obj[..., 2], obj[..., 2] + obj[..., OBJECT_EEF_TO_CUBE][..., 2]], dim=-1)
-
-
-def _tested_steps(rollout, every: int) -> np.ndarray:
-    """The held steps a straight lift starts from: every ``every``-th one."""
-    return np.flatnonzero(held_states(rollout))[::every]
 
 
 def fit_height_probe(agent, rollouts: list, seed: int = 0) -> tuple:
@@ -160,7 +148,7 @@ def fit_height_probe(agent, rollouts: list, seed: int = 0) -> tuple:
     states = torch.cat([rollout["next"].select(*encoder.in_keys) for rollout in rollouts])
     with torch.inference_mode():
         z = encoder.encode(states).float()
-    heights = torch.cat([_heights(rollout["next", "object"].float()) for rollout in rollouts])
+    heights = torch.cat([cube_and_hand_heights(rollout["next", "object"].float()) for rollout in rollouts])
     probe, stats = fit_latent_probe(z.clone(), heights.clone(), seed=seed)  # clones: trainable, not inference
     return probe, {"pairs": int(len(z)), "held_out_r2": round(stats["held_out_r2"], 3),
                    "held_out_mae_cm": round(stats["held_out_mae"] * 100, 2)}
@@ -176,7 +164,7 @@ def imagined_straight_lift(agent, probe, rollouts: list, every: int = 10) -> dic
     groups: dict[str, list[torch.Tensor]] = {}
     with torch.inference_mode():
         for rollout in rollouts:
-            steps = _tested_steps(rollout, every)
+            steps = tested_steps(rollout, every)
             if not len(steps):
                 continue
             zk = encoder.encode(rollout["next"][torch.as_tensor(steps)].select(*encoder.in_keys)).float()
@@ -184,7 +172,7 @@ def imagined_straight_lift(agent, probe, rollouts: list, every: int = 10) -> dic
             for action in plan:
                 zk = dynamics(zk, action.expand(len(zk), -1))
                 rises.append(probe(zk) - start)
-            groups.setdefault(_outcome(rollout), []).append(torch.stack(rises, dim=1))  # [N, H, 2]
+            groups.setdefault(episode_outcome(rollout), []).append(torch.stack(rises, dim=1))  # [N, H, 2]
     result = {}
     for name, parts in groups.items():
         mean_cm = torch.cat(parts).mean(0) * 100
@@ -192,70 +180,6 @@ def imagined_straight_lift(agent, probe, rollouts: list, every: int = 10) -> dic
                         "cube_rise_cm": [round(float(v), 2) for v in mean_cm[:, 0]],
                         "hand_rise_cm": [round(float(v), 2) for v in mean_cm[:, 1]]}
     return result
-
-
-def _outcome(rollout) -> str:
-    succeeded = bool(rollout["next", "success"].any()) if ("next", "success") in rollout.keys(True) else False
-    return "succeeded" if succeeded else "grasped_without_success"
-
-
-def _replay_to(env, seed: int, rollout, t: int) -> tuple:
-    """Replays ``rollout``'s actions from ``env.set_seed(seed)`` and a reset to the state after step ``t``
-    -> ``(tensordict there, whether its observation equals the recorded one)``."""
-    env.set_seed(seed)
-    td = env.reset()
-    for k in range(t + 1):  # after step t the state is rollout["next"][t]
-        td = step_mdp(env.step(td.set("action", rollout["action"][k].clone())))
-    return td, bool(torch.equal(td["object"], rollout["next", "object"][t]))
-
-
-def _hold(env, td, action: torch.Tensor, steps: int) -> tuple[list, bool]:
-    """Steps ``action`` ``steps`` times from ``td`` (fewer if the episode ends) -> ``(the observations after each
-    step, whether the task succeeded on the way)``."""
-    after, succeeded = [], False
-    for _ in range(steps):
-        stepped = env.step(td.set("action", action.clone()))
-        after.append(stepped["next"])
-        succeeded = succeeded or bool(stepped["next", "success"].any())
-        if bool(stepped["next", "done"].any()):
-            break
-        td = step_mdp(stepped)
-    return after, succeeded
-
-
-def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every: int = 10,
-                                   lift_steps: int = 20) -> dict:
-    """From every ``every``-th held state of each rollout (``rollouts[i]`` played from ``env.set_seed(seeds[i])``
-    and a reset), replays the recorded actions to that state, then commands ``[0, 0, +1, closing]`` for
-    ``lift_steps`` steps -> per outcome group ``{"tested", "lifted", "replay_exact"}`` (shares of the tested states)
-    and ``"cube_rise_cm"`` / ``"hand_rise_cm"``: the mean rise above the start after each lift step (an episode that
-    ends early keeps its last height)."""
-    _check_replay_args(seeds, rollouts, every, lift_steps)
-    lift = constant_vertical_plans(1, 4, (1.0,))[0, 0]
-    groups: dict[str, list[tuple[bool, bool, np.ndarray]]] = {}
-    for seed, rollout in zip(seeds, rollouts):
-        for t in _tested_steps(rollout, every):
-            td, exact = _replay_to(env, seed, rollout, t)
-            after, lifted = _hold(env, td, lift.to(rollout["action"].dtype), lift_steps)
-            start = _heights(td["object"].float())
-            rises = [(_heights(obs["object"].float()) - start).numpy() for obs in after]
-            rises += rises[-1:] * (lift_steps - len(rises))
-            groups.setdefault(_outcome(rollout), []).append((lifted, exact, np.stack(rises)))
-    result = {}
-    for name, rows in groups.items():
-        rise_cm = np.mean([r[2] for r in rows], axis=0) * 100
-        result[name] = {"tested": len(rows), "lifted": round(float(np.mean([r[0] for r in rows])), 3),
-                        "replay_exact": round(float(np.mean([r[1] for r in rows])), 3),
-                        "cube_rise_cm": [round(float(v), 2) for v in rise_cm[:, 0]],
-                        "hand_rise_cm": [round(float(v), 2) for v in rise_cm[:, 1]]}
-    return result
-
-
-def _check_replay_args(seeds, rollouts, every, steps) -> None:
-    if len(seeds) != len(rollouts):
-        raise ValueError(f"one seed per rollout: {len(seeds)} seeds, {len(rollouts)} rollouts")
-    if every < 1 or steps < 1:
-        raise ValueError(f"every and the steps played must be >= 1, got {every} and {steps}")
 
 
 def simulated_plan_returns(env, agent, seeds: list[int], rollouts: list, every: int = 10,
@@ -267,23 +191,23 @@ def simulated_plan_returns(env, agent, seeds: list[int], rollouts: list, every: 
     imagined one -> per outcome group a row as :func:`score_held_states` gives (``taken_z_mean`` left out; a plan
     cut short by the episode's end is left out of every command at that state)."""
     planner, encoder = agent.planner, agent.modules.encoder
-    _check_replay_args(seeds, rollouts, every, planner.horizon)
+    check_replay_args(seeds, rollouts, every, planner.horizon)
     plans = constant_vertical_plans(planner.horizon, planner.action_dim, vertical)
     heads = torch.arange(agent.modules.value.net.num_q)
     groups: dict[str, tuple[list, list]] = {}
     for seed, rollout in zip(seeds, rollouts):
-        for t in _tested_steps(rollout, every):
+        for t in tested_steps(rollout, every):
             paths = []
             for plan in plans:
-                td, _ = _replay_to(env, seed, rollout, t)
-                after, _ = _hold(env, td, plan[0].to(rollout["action"].dtype), planner.horizon)
+                td, _ = replay_to(env, seed, rollout, t)
+                after, _ = hold_action(env, td, plan[0].to(rollout["action"].dtype), planner.horizon)
                 paths.append(torch.stack([td.select(*encoder.in_keys)] + [o.select(*encoder.in_keys) for o in after]))
             if any(len(path) < planner.horizon + 1 for path in paths):
                 continue
             with torch.inference_mode():
                 latents = encoder.encode(torch.stack(paths)).float()  # [len(vertical), H + 1, Z]
                 rewards, terminal = planner.path_return_parts(latents, plans, heads)
-            bucket = groups.setdefault(_outcome(rollout), ([], []))
+            bucket = groups.setdefault(episode_outcome(rollout), ([], []))
             bucket[0].append(rewards.numpy())
             bucket[1].append(terminal.numpy())
     result = {}
@@ -347,7 +271,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"  {name:24s} straight lift from {row['tested']} held states: lifted {row['lifted']:.2f} "
                   f"(replayed exactly: {row['replay_exact']:.2f}); after {horizon} steps cube / hand rose "
                   f"{row['cube_rise_cm'][horizon - 1]:.1f} / {row['hand_rise_cm'][horizon - 1]:.1f} cm, imagined "
-                  f"{imagined['cube_rise_cm'][horizon - 1]:.1f} / {imagined['hand_rise_cm'][horizon - 1]:.1f} cm", flush=True)
+                  f"{imagined['cube_rise_cm'][horizon - 1]:.1f} / {imagined['hand_rise_cm'][horizon - 1]:.1f} cm",
+                  flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")
