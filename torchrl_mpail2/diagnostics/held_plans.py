@@ -42,7 +42,7 @@ import torch
 from torchrl_mpail2.diagnostics.held_replays import (GRIPPER_CLOSING, check_replay_args, cube_and_hand_heights,
                                                      episode_outcome, hold_action, replay_to,
                                                      straight_lift_from_held_states, tested_steps)
-from torchrl_mpail2.diagnostics.lift_phases import held_states, play_lift_episodes
+from torchrl_mpail2.diagnostics.lift_phases import cube_rise_m, held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
            "simulated_plan_returns", "value_by_rise"]
@@ -110,12 +110,10 @@ RISE_BINS_CM = (0.5, 1.0, 2.0, 4.0, 8.0)
 
 
 def value_by_rise(agent, rollouts: list) -> dict:
-    """The value of the policy's mean first action, :math:`Q(z, \pi(z))` (mean of every head), and the learned
+    r"""The value of the policy's mean first action, :math:`Q(z, \pi(z))` (mean of every head), and the learned
     reward of the step taken there, at the held states of ``rollouts``, by outcome group and by the cube's rise
     above its settled height (bins :data:`RISE_BINS_CM`) -> ``{group: {"<a..b cm": {"states", "q", "reward"}}}``.
     Which heights the value already rates well, on the agent's own path."""
-    from torchrl_mpail2.diagnostics.lift_phases import SETTLED_STEP
-
     m, encoder = agent.modules, agent.modules.encoder
     edges = (-np.inf, *RISE_BINS_CM, np.inf)
     groups: dict[str, dict[str, list]] = {}
@@ -124,8 +122,7 @@ def value_by_rise(agent, rollouts: list) -> dict:
             held = held_states(rollout)[:-1]  # the last state has no step taken from it
             if not held.any():
                 continue
-            obj = rollout["next", "object"]
-            rise_cm = ((obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]) * 100).numpy()[:-1][held]
+            rise_cm = cube_rise_m(rollout["next", "object"].numpy())[:-1][held] * 100
             z = encoder.encode(rollout["next"].select(*encoder.in_keys)).float()
             q = m.value.net(z, m.policy.net(z, deterministic=True)[0][:, 0]).squeeze(-1).mean(0)[:-1]
             reward = m.reward.module(z[:-1], z[1:]).squeeze(-1)

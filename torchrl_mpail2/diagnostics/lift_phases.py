@@ -36,8 +36,8 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["grasped_without_success", "held_states", "lift_phases", "play_lift_episodes", "summarize_phases",
-           "use_planner_settings"]
+__all__ = ["cube_rise_m", "grasped_without_success", "held_states", "lift_phases", "play_lift_episodes",
+           "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
 #: Panda finger opening (left minus right joint): 0.043 m at reset, about 0.078 m wide open, 0.003 m shut on
@@ -68,6 +68,11 @@ def _reach_closing_held(proprio: np.ndarray, obj: np.ndarray) -> tuple[np.ndarra
     return distance, near, closing, near & closing & (opening > SHUT_M)
 
 
+def cube_rise_m(obj: np.ndarray) -> np.ndarray:
+    """``[T]``: the cube's height above where it settled (step :data:`SETTLED_STEP`), from ``"object"`` ``[T, D]``."""
+    return obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]
+
+
 def held_states(rollout: TensorDictBase) -> np.ndarray:
     """``[T]`` booleans: after step ``t`` (``rollout["next"][t]``) the fingers hold something within reach of the
     cube (the ``grasp`` phase's test)."""
@@ -83,7 +88,7 @@ def lift_phases(rollout: TensorDictBase) -> dict:
 
     proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
     distance, near, closing, held = _reach_closing_held(proprio, obj)
-    rise = obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]
+    rise = cube_rise_m(obj)
     hand_z = obj[:, 2] + obj[:, OBJECT_EEF_TO_CUBE][:, 2]
     first_grasp = int(np.argmax(held)) if held.any() else None
     held_actions = rollout["action"].numpy()[1:][held[:-1]]  # the action taken in each held state
