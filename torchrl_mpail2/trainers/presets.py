@@ -42,7 +42,8 @@ def _lift_state_cpu() -> ExperimentConfig:
     transition per window at batch 256 and UTD 1, mixed-precision updates where the CPU runs bf16 natively
     (``auto``: emulated on an AVX2 CPU, a bf16 update took 15 times as long as a float32 one), the raw critic as the
     paper prints it (no running reward scale) with a gradient penalty of 10 instead of Table 4's 0.1
-    (``lift_state_rawgp10_bf16_s23``: Last 0.75 against 0.45 for the running scale at 0.1, seeds 2 and 3, paired);
+    (``lift_state_rawgp10_bf16_s23``: Last 0.75 against 0.45 for the running scale at 0.1, seeds 2 and 3, paired;
+    ``lift_state_rawgp10_bf16_s01``: 0.925 against 0.575 on seeds 0 and 1);
     evaluations every 50 episodes on 20."""
     cfg = _robosuite_state_cpu("robosuite/Lift")
     t = cfg.train
