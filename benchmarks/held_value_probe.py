@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrl_mpail2.diagnostics.held_replays import episode_outcome, hold_action, replay_to, tested_steps
+from torchrl_mpail2.diagnostics.held_replays import episode_outcome, played_paths, tested_steps
 from torchrl_mpail2.diagnostics.lift_phases import play_lift_episodes
 from torchrl_mpail2.trainers.evaluation import evaluation_env, evaluation_seeds, run_eval_seed
 
@@ -47,20 +47,19 @@ def probe(path: str, episodes: int, outcome: str) -> dict:
     env = evaluation_env(train)
     encoder, horizon = agent.modules.encoder, agent.planner.horizon
     rows: dict[str, list[dict]] = {"start": [], **{key: [] for key in PLANS}}
+    actions = torch.tensor([FIXED[action] for action in PLANS.values()])
     for seed, rollout in zip(evaluation_seeds(run_eval_seed(train), episodes), rollouts):
         if (episode_outcome(rollout) == "succeeded") != (outcome == "succeeded"):
             continue
         for t in tested_steps(rollout, 10):
-            td, _ = replay_to(env, seed, rollout, t)
-            with torch.inference_mode():
-                rows["start"].append(values_at(agent, encoder.encode(td.select(*encoder.in_keys).unsqueeze(0))))
-            for key, action in PLANS.items():
-                td, _ = replay_to(env, seed, rollout, t)
-                after, _ = hold_action(env, td, torch.tensor(FIXED[action]), horizon)
-                if len(after) == horizon:
-                    with torch.inference_mode():
-                        z = encoder.encode(after[-1].select(*encoder.in_keys).unsqueeze(0))
-                    rows[key].append(values_at(agent, z))
+            with torch.inference_mode():  # the held state as recorded (the replay reaches it exactly)
+                z = encoder.encode(rollout["next"][t : t + 1].select(*encoder.in_keys))
+            rows["start"].append(values_at(agent, z))
+            paths = played_paths(env, seed, rollout, t, actions, horizon, encoder.in_keys)
+            for key, played in zip(PLANS, paths or []):
+                with torch.inference_mode():
+                    z = encoder.encode(played[-1:])
+                rows[key].append(values_at(agent, z))
     env.close()
     return {"checkpoint": path, "episodes": episodes, "outcome": outcome, "horizon": horizon,
             **{key: {"states": len(r), **{k: round(float(np.mean([x[k] for x in r])), 2) for k in r[0]}} if r

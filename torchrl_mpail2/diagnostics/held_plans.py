@@ -40,8 +40,8 @@ import numpy as np
 import torch
 
 from torchrl_mpail2.diagnostics.held_replays import (GRIPPER_CLOSING, check_replay_args, cube_and_hand_heights,
-                                                     episode_outcome, hold_action, replay_to,
-                                                     straight_lift_from_held_states, tested_steps)
+                                                     episode_outcome, played_paths, straight_lift_from_held_states,
+                                                     tested_steps)
 from torchrl_mpail2.diagnostics.lift_phases import cube_rise_m, held_states, play_lift_episodes
 
 __all__ = ["VERTICAL", "constant_vertical_plans", "fit_height_probe", "imagined_straight_lift", "score_held_states",
@@ -62,7 +62,7 @@ def constant_vertical_plans(horizon: int, action_dim: int, vertical=VERTICAL) ->
     return plans
 
 
-def _group_rows(rewards: np.ndarray, terminal: np.ndarray, taken_z: np.ndarray, vertical) -> dict:
+def _group_rows(rewards: np.ndarray, terminal: np.ndarray, vertical, taken_z: np.ndarray | None = None) -> dict:
     up, down = vertical.index(1.0), vertical.index(-1.0)
 
     def by_z(values):
@@ -75,7 +75,7 @@ def _group_rows(rewards: np.ndarray, terminal: np.ndarray, taken_z: np.ndarray, 
     return {"states": int(len(returns)), "mean_return": by_z(returns), "up_beats_down": up_wins(returns),
             "mean_reward_sum": by_z(rewards), "up_beats_down_reward_sum": up_wins(rewards),
             "mean_terminal": by_z(terminal), "up_beats_down_terminal": up_wins(terminal),
-            "taken_z_mean": round(float(taken_z.mean()), 3)}
+            **({} if taken_z is None else {"taken_z_mean": round(float(taken_z.mean()), 3)})}
 
 
 def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
@@ -101,7 +101,7 @@ def score_held_states(agent, rollouts: list, vertical=VERTICAL) -> dict:
             bucket[0].append(rewards.float().numpy())
             bucket[1].append(terminal.float().numpy())
             bucket[2].append(taken_z.float().numpy())
-    return {name: _group_rows(np.concatenate(r), np.concatenate(q), np.concatenate(z), list(vertical))
+    return {name: _group_rows(np.concatenate(r), np.concatenate(q), list(vertical), np.concatenate(z))
             for name, (r, q, z) in groups.items() if r}
 
 
@@ -194,12 +194,8 @@ def simulated_plan_returns(env, agent, seeds: list[int], rollouts: list, every: 
     groups: dict[str, tuple[list, list]] = {}
     for seed, rollout in zip(seeds, rollouts):
         for t in tested_steps(rollout, every):
-            paths = []
-            for plan in plans:
-                td, _ = replay_to(env, seed, rollout, t)
-                after, _ = hold_action(env, td, plan[0].to(rollout["action"].dtype), planner.horizon)
-                paths.append(torch.stack([td.select(*encoder.in_keys)] + [o.select(*encoder.in_keys) for o in after]))
-            if any(len(path) < planner.horizon + 1 for path in paths):
+            paths = played_paths(env, seed, rollout, t, plans[:, 0], planner.horizon, encoder.in_keys)
+            if paths is None:
                 continue
             with torch.inference_mode():
                 latents = encoder.encode(torch.stack(paths)).float()  # [len(vertical), H + 1, Z]
@@ -207,12 +203,8 @@ def simulated_plan_returns(env, agent, seeds: list[int], rollouts: list, every: 
             bucket = groups.setdefault(episode_outcome(rollout), ([], []))
             bucket[0].append(rewards.numpy())
             bucket[1].append(terminal.numpy())
-    result = {}
-    for name, (rewards, terminal) in groups.items():
-        row = _group_rows(np.stack(rewards), np.stack(terminal), np.zeros(1), list(vertical))
-        row.pop("taken_z_mean")
-        result[name] = row
-    return result
+    return {name: _group_rows(np.stack(rewards), np.stack(terminal), list(vertical))
+            for name, (rewards, terminal) in groups.items()}
 
 
 def _print_parts(row: dict) -> None:

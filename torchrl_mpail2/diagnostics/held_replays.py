@@ -10,7 +10,7 @@ from torchrl.envs.utils import step_mdp
 from torchrl_mpail2.diagnostics.lift_phases import held_states
 
 __all__ = ["GRIPPER_CLOSING", "check_replay_args", "cube_and_hand_heights", "episode_outcome", "hold_action",
-           "replay_to", "straight_lift_from_held_states", "tested_steps"]
+           "played_paths", "replay_to", "straight_lift_from_held_states", "tested_steps"]
 
 #: The gripper command of every held plan: closing (robosuite's Panda gripper closes for positive commands).
 GRIPPER_CLOSING = 1.0
@@ -56,6 +56,20 @@ def hold_action(env, td, action: torch.Tensor, steps: int) -> tuple[list, bool]:
             break
         td = step_mdp(stepped)
     return after, succeeded
+
+
+def played_paths(env, seed: int, rollout, t: int, actions, steps: int, keys) -> list | None:
+    """From the state after step ``t`` of ``rollout`` (reached by :func:`replay_to`), each of ``actions`` held for
+    ``steps`` steps -> one ``[steps + 1]`` tensordict of the observation ``keys`` per action (the start first), or
+    None if the episode ended before any of them finished."""
+    paths = []
+    for action in actions:
+        td, _ = replay_to(env, seed, rollout, t)
+        after, _ = hold_action(env, td, action.to(rollout["action"].dtype), steps)
+        if len(after) < steps:
+            return None
+        paths.append(torch.stack([td.select(*keys)] + [obs.select(*keys) for obs in after]))
+    return paths
 
 
 def straight_lift_from_held_states(env, seeds: list[int], rollouts: list, every: int = 10,
