@@ -1,0 +1,53 @@
+"""The point-mass check of a speed setting summarises finished runs per seed and names a missing run file."""
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture()
+def bench():
+    spec = importlib.util.spec_from_file_location("setting_learning", ROOT / "benchmarks" / "setting_learning.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _fake_run(folder: Path, successes, wall, act):
+    folder.mkdir(parents=True)
+    (folder / "summary.json").write_text(json.dumps(
+        {"wall_time_s": wall, "best_eval_success": max(successes), "time_split_s": {"act": act, "evaluate": 1.0}}))
+    (folder / "eval.jsonl").write_text("".join(
+        json.dumps({"episode": 10 * (i + 1), "success_rate_any_step": s, "success_rate": s, "return": 0.0}) + "\n"
+        for i, s in enumerate(successes)))
+
+
+def test_compile_mode_summarises_each_seed(bench, tmp_path, monkeypatch):
+    runs = tmp_path / "runs"
+    _fake_run(runs / "seed0_eager", [0.0, 1.0], wall=100.0, act=20.0)
+    _fake_run(runs / "seed0_compiled", [0.5, 1.0], wall=90.0, act=9.0)
+    _fake_run(runs / "seed3_eager", [1.0, 1.0], wall=80.0, act=19.0)
+    _fake_run(runs / "seed3_compiled", [0.0, 0.0], wall=70.0, act=8.0)
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["setting_learning.py", "--mode", "compile", "--seeds", "0", "3",
+                                      "--runs-root", str(runs), "--out", str(out)])
+    bench.main()
+    result = json.loads((out / "planner_compile_learning.json").read_text())
+    assert result["overrides"] == ["planner.compile=true"] and result["seeds"] == [0, 3]
+    assert [e["success_rate_any_step"] for e in result["runs"][1]["compiled"]["evals"]] == [0.0, 0.0]
+    table = (out / "planner_compile_learning.md").read_text()
+    assert "after episodes 10 / 20" in table
+    assert "| 0 | 0.0 / 1.0 | 0.5 / 1.0 | 100 | 90 | 21 | 10 |" in table
+    assert "| 3 | 1.0 / 1.0 | 0.0 / 0.0 | 80 | 70 | 20 | 9 |" in table
+
+
+def test_missing_run_file_is_named(bench, tmp_path, monkeypatch):
+    _fake_run(tmp_path / "seed0_eager", [1.0], wall=1.0, act=1.0)
+    monkeypatch.setattr(sys, "argv", ["setting_learning.py", "--mode", "compile", "--runs-root", str(tmp_path),
+                                      "--out", str(tmp_path / "out")])
+    with pytest.raises(SystemExit, match="seed0_compiled/summary.json is missing"):
+        bench.main()
