@@ -9,7 +9,10 @@ imagined rollout under bf16 autocast), ``one_transition_per_window`` and ``one_t
 (``LossConfig(transitions_per_window=1)``: the reward, value and actor stages on one random transition of each
 window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``optimised_mixed_bf16`` and
 ``one_transition_per_window_mixed_bf16`` (``MPAIL2Updater(bf16=True)``: every stage's forward pass under bf16
-autocast, float32 weights, gradients and optimisers).
+autocast, float32 weights, gradients and optimisers). Any variant may end in ``_compiled``: the dynamics, policy and
+Q-ensemble networks compiled with ``torch.compile`` (forward and backward; the reward network stays eager, since its
+gradient penalty needs a double backward, which compiled graphs do not support); its first update, which compiles,
+is timed apart (``compile_s``).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -32,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _child_env import child_env  # noqa: E402
 from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
+COMPILED = "_compiled"
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
             "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",
             "one_transition_per_window_mixed_bf16")
@@ -69,6 +73,13 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
 
     setting = SETTINGS[setting_name]
     modules = setting.modules()
+    compiled = variant.endswith(COMPILED)
+    variant = variant.removesuffix(COMPILED)
+    if compiled:
+        import torch._dynamo
+        torch._dynamo.config.cache_size_limit = 64  # several call shapes per network (windows, rollouts)
+        for net in (modules.dynamics.module.net, modules.policy.net.net, modules.value.net):
+            net.compile(dynamic=False)
     # one_transition_per_window*: reward, value and actor on one random transition of each window (B of them)
     loss = MPAIL2Loss(modules, LossConfig(transitions_per_window=1 if variant.startswith("one_transition") else None))
     td = replay_batch(setting, batch, steps)
@@ -82,7 +93,9 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
                                 bf16_stop_gradient=variant.endswith(("bf16_stop_gradient", "window_bf16")),
                                 bf16=variant.endswith("mixed_bf16"))
-        updater.update(td)  # warm-up: optimiser state, allocator
+        t = time.perf_counter()
+        updater.update(td)  # warm-up: optimiser state, allocator (and compilation)
+        compile_s = time.perf_counter() - t
         totals, stages = [], []
         record: dict = {}
         _instrument(updater, record)
@@ -93,7 +106,8 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
             totals.append(time.perf_counter() - t)
             stages.append(dict(record))
         peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
-        out = {"update_s": totals, "stages_s": stages, "peak_rss_mb": peak_rss_mb, "machine": machine()}
+        out = {"update_s": totals, "stages_s": stages, "peak_rss_mb": peak_rss_mb, "machine": machine(),
+               "first_update_s": compile_s}
         if profile:
             from torch.profiler import ProfilerActivity, profile as torch_profile
             with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
@@ -123,7 +137,8 @@ def summarise(results: dict) -> dict:
             stage_names = list(dict.fromkeys(k for run in runs for rec in run["stages_s"] for k in rec))  # call order
             stages = {k: median_ms([rec.get(k, 0.0) for run in runs for rec in run["stages_s"]]) for k in stage_names}
             summary[setting][variant] = {"update_ms": median_ms(updates), "update_ms_all": [1000 * s for s in updates],
-                                         "stages_ms": stages, "peak_rss_mb": max(run["peak_rss_mb"] for run in runs)}
+                                         "stages_ms": stages, "peak_rss_mb": max(run["peak_rss_mb"] for run in runs),
+                                         "first_update_ms": median_ms([run["first_update_s"] for run in runs])}
         base = summary[setting].get("initial", {}).get("update_ms")
         for variant, entry in summary[setting].items():
             entry["speedup_vs_initial"] = base / entry["update_ms"] if base else None
