@@ -9,7 +9,9 @@ episodes), one after the other so that no two share the cores. It reports env st
 run and the trainer's split of the wall time (``summary.json``'s ``time_split_s``: planning, env, update,
 evaluation, checkpoint, logging). ``--num-envs`` adds runs collecting from several environments at once
 (``train.num_envs``); every run then starts with the same random warm-up (``max(--num-envs)`` episodes), so the
-planned episodes are the same in number. Writes ``docs/results/speed/<name>.json`` and ``<name>.md`` (``--name``, default
+planned episodes are the same in number. ``--runs DIR [DIR ...]`` tabulates finished training runs instead (any
+length, e.g. a 300-episode learning run at its default evaluation schedule), read from their ``summary.json`` and
+``config.json``. Writes ``docs/results/speed/<name>.json`` and ``<name>.md`` (``--name``, default
 ``loop_speed``). Run it on a quiet machine: anything else running slows every figure (say what was).
 """
 from __future__ import annotations
@@ -40,10 +42,20 @@ def run_one(preset: str, threads: int, episodes: int, scratch: Path, extra: list
     proc = subprocess.run(cmd, cwd=scratch, env=child_env(threads), capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"training run {run_dir.name} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+    return read_run(run_dir, preset)
+
+
+def read_run(run_dir: Path, preset: str | None = None) -> dict:
+    """The speed row of a finished run folder: env steps per second over its whole wall time and its time split."""
+    for name in ("summary.json", "config.json"):
+        if not (run_dir / name).is_file():
+            raise SystemExit(f"{run_dir / name} is missing: not a finished training run")
     summary = json.loads((run_dir / "summary.json").read_text())
+    train = json.loads((run_dir / "config.json").read_text())["train"]
     split = summary["time_split_s"]
     total = split["total"]
-    return {"preset": preset, "threads": threads, "num_envs": num_envs, "episodes": summary["episodes"], "env_steps": summary["env_steps"],
+    return {"preset": preset or f"{run_dir.parent.name}/{run_dir.name}", "run": str(run_dir), "threads": train["threads"],
+            "num_envs": train.get("num_envs", 1), "episodes": summary["episodes"], "env_steps": summary["env_steps"],
             "updates": summary["updates"], "wall_s": total, "env_steps_per_s": summary["env_steps"] / total,
             # collection alone (planning + env steps): what several environments at once speed up
             "collect_steps_per_s": summary["env_steps"] / max(split.get("act", 0.0) + split.get("env", 0.0), 1e-9),
@@ -71,8 +83,16 @@ def main() -> None:
     p.add_argument("--name", default="loop_speed", help="results file name under --out")
     p.add_argument("--note", default="", help="what else was running, recorded with the figures")
     p.add_argument("--out", type=Path, default=RESULTS, help="folder of loop_speed.json and loop_speed.md")
+    p.add_argument("--runs", type=Path, nargs="+", help="tabulate these finished run folders instead of training")
     p.add_argument("overrides", nargs="*", help="config overrides for every run (section.field=value)")
     args = p.parse_args()
+    if args.runs:
+        rows = [read_run(run) for run in args.runs]
+        write_record(args.out, args.name, {"runs": rows}, args.note, ROOT,
+                     lambda commit: f"# Whole-loop speed of finished runs\n\n{table(rows)}\n\n"
+                                    f"Tabulated at commit {commit}. {args.note}\n")
+        print(table(rows))
+        return
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         warmup = max(args.num_envs)

@@ -1,4 +1,4 @@
-"""The point-mass check of a speed setting summarises finished runs per seed and names a missing run file."""
+"""Benchmark scripts that read finished runs: the point-mass check of a speed setting, the whole-loop table."""
 import importlib.util
 import json
 import sys
@@ -51,3 +51,22 @@ def test_missing_run_file_is_named(bench, tmp_path, monkeypatch):
                                       "--out", str(tmp_path / "out")])
     with pytest.raises(SystemExit, match="seed0_compiled/summary.json is missing"):
         bench.main()
+
+
+def test_loop_speed_tabulates_a_finished_run(tmp_path):
+    spec = importlib.util.spec_from_file_location("loop_speed", ROOT / "benchmarks" / "loop_speed.py")
+    loop_speed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(loop_speed)
+    run = tmp_path / "lift_pair" / "seed0"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"train": {"threads": 1}}))
+    with pytest.raises(SystemExit, match="seed0/summary.json is missing"):
+        loop_speed.read_run(run)
+    split = {"act": 30.0, "env": 10.0, "update": 40.0, "evaluate": 15.0, "checkpoint": 5.0, "total": 100.0}
+    (run / "summary.json").write_text(json.dumps({"time_split_s": split, "episodes": 4, "env_steps": 400,
+                                                  "updates": 300}))
+    row = loop_speed.read_run(run)
+    assert row["preset"] == "lift_pair/seed0" and row["num_envs"] == 1
+    assert row["env_steps_per_s"] == pytest.approx(4.0) and row["collect_steps_per_s"] == pytest.approx(10.0)
+    assert row["split_share"]["evaluate"] == pytest.approx(0.15) and row["split_share"]["log"] == 0.0
+    assert "| lift_pair/seed0 | 1 | 1 | 4.00 | 10.00 | 300 | 30 | 10 | 40 | 15 | 5 | 0 |" in loop_speed.table([row])
