@@ -274,3 +274,34 @@ def test_the_compiled_planner_plans_as_the_eager_one_in_training_and_evaluation(
         with set_exploration_type(mode):
             actions = [planner(observations.clone())["action"] for planner in (eager, compiled)]
         torch.testing.assert_close(actions[1], actions[0], atol=1e-5, rtol=1e-5)
+    # the graphs read the weights as they are now (an optimiser step between calls), and planners built later on
+    # other networks of the same sizes reuse them with their own weights
+    with torch.no_grad():
+        for param in compiled.components.parameters():
+            param.add_(0.3 * torch.randn_like(param))
+    for eager, compiled in ((eager, compiled), _twin_planners(compile_mode=compile_mode)):
+        actions = [planner(observations.clone())["action"] for planner in (eager, compiled)]
+        torch.testing.assert_close(actions[1], actions[0], atol=1e-5, rtol=1e-5)
+
+
+def test_a_planner_whose_compilation_fails_warns_once_and_plans_eagerly(monkeypatch, caplog):
+    import torchrl_mpail2.planners.mppi as mppi
+
+    calls = []
+
+    def failing_compile(fn, **kwargs):
+        def compiled(*args):
+            calls.append(1)
+            raise torch._dynamo.exc.BackendCompilerFailed(fn, RuntimeError("InvalidCxxCompiler: no C++ compiler"), None)
+        return compiled
+
+    monkeypatch.setattr(mppi.torch, "compile", failing_compile)
+    eager, compiled = _twin_planners()
+    observations = TensorDict({"observation": torch.randn(2, 3)}, [2])
+    with caplog.at_level("WARNING", logger="torchrl_mpail2.planners.mppi"):
+        for _ in range(2):
+            actions = [planner(observations.clone())["action"] for planner in (eager, compiled)]
+            torch.testing.assert_close(actions[1], actions[0])
+    assert len(calls) == 1  # tried once, then eager for good
+    warnings = [r.getMessage() for r in caplog.records if "compiling the plan scoring failed" in r.getMessage()]
+    assert len(warnings) == 1 and "InvalidCxxCompiler" in warnings[0]

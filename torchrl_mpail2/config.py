@@ -298,8 +298,10 @@ class PlannerConfig:
     """Run the planner's matmuls under bfloat16 autocast (faster on CPUs with AVX-512 bf16)."""
     compile: bool = False
     """Compile the plan scoring (latent rollout, rewards, terminal value) with ``torch.compile``, once per batch
-    shape and precision; training and evaluation calls share the graphs. Off by default: compiling costs minutes
-    on a CPU and changes the last bits of the returns (``benchmarks/compile_speed.py``)."""
+    shape and precision; training and evaluation calls share the graphs, and so do planners built later in the same
+    process on networks of the same sizes. Where compiling fails (inductor needs a working C++ compiler on a CPU), a
+    warning is logged and the planner scores eagerly. Off by default: compiling costs 25-55 s on a CPU and changes
+    the last bits of the returns (``benchmarks/compile_speed.py``)."""
     compile_mode: str = "default"
     """``torch.compile`` mode with ``compile``: ``default``, ``reduce-overhead`` (the scoring replayed as CUDA graphs
     on a GPU, against the launch overhead that bounds a planning call there; the returns are copied out of the

@@ -2,6 +2,7 @@ r"""Latent MPPI planner seeded by the multi-step policy (Algorithm 2)."""
 from __future__ import annotations
 
 import contextlib
+import logging
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -22,9 +23,32 @@ from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 #: carries it (:meth:`LatentMPPIPlanner.make_tensordict_primer`).
 WARM_START_KEY = "planner_mean"
 
+log = logging.getLogger(__name__)
+
 
 def _to_bf16(t: Tensor) -> Tensor:
     return t.to(torch.bfloat16) if t.is_floating_point() else t
+
+
+class _EagerIfCompileFails:
+    """Calls the compiled scorer; where compiling fails (no working C++ compiler for inductor's CPU code, a backend
+    error), warns once and scores eagerly from then on. Eager scoring gives the same returns up to their last bits;
+    an error that is not the compiler's is raised again by the eager call."""
+
+    def __init__(self, compiled, eager):
+        self.compiled, self.eager, self.failed = compiled, eager, False
+
+    def __call__(self, z: Tensor, plans: Tensor, heads: Tensor) -> Tensor:
+        if not self.failed:
+            try:
+                return self.compiled(z, plans, heads)
+            except torch._dynamo.exc.BackendCompilerFailed as error:
+                self.failed = True
+                cause = getattr(error, "inner_exception", None) or error
+                text = str(cause).strip()
+                log.warning("planner.compile=true: compiling the plan scoring failed, planning eagerly instead "
+                            "(%s%s)", type(cause).__name__, f": {text.splitlines()[0]}" if text else "")
+        return self.eager(z, plans, heads)
 
 
 def _outside_graph_memory(scorer):
@@ -212,6 +236,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
             compiled = torch.compile(self.score, dynamic=False, mode=self.cfg.compile_mode)
             if self.cfg.compile_mode == "reduce-overhead":
                 compiled = _outside_graph_memory(compiled)
+            compiled = _EagerIfCompileFails(compiled, self.score)
             self.__dict__["_compiled_score"] = compiled
         return compiled
 
