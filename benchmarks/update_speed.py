@@ -12,7 +12,7 @@ window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``o
 autocast, float32 weights, gradients and optimisers). Any variant may end in ``_compiled``: the dynamics, policy and
 Q-ensemble networks compiled with ``torch.compile`` (forward and backward; the reward network stays eager, since its
 gradient penalty needs a double backward, which compiled graphs do not support); its first update, which compiles,
-is timed apart (``compile_s``).
+is timed apart (``first_update_ms``).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -195,6 +195,12 @@ def main() -> None:
         print(json.dumps(worker(*args.worker, args.batch, args.steps, args.updates, args.profile)))
         return
     settings, variants = args.settings.split(","), args.variants.split(",")
+    for variant in variants:
+        if variant.removesuffix(COMPILED) not in VARIANTS:
+            p.error(f"unknown variant {variant!r}; variants: {', '.join(VARIANTS)}, each optionally + {COMPILED!r}")
+    for setting in settings:
+        if setting not in SETTINGS:
+            p.error(f"unknown setting {setting!r}; settings: {', '.join(SETTINGS)}")
     load_start = [round(x, 2) for x in os.getloadavg()]
     results = {s: {v: [] for v in variants} for s in settings}
     profiles = {}
