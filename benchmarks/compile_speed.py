@@ -12,6 +12,11 @@ For each setting, two planners on the same networks and observations, one eager 
 
     python benchmarks/compile_speed.py                          # JSON + Markdown in docs/results/speed
     python benchmarks/compile_speed.py --settings lift_state --calls 5
+    python benchmarks/compile_speed.py --checkpoint RUN/checkpoints/episode_000170 --calls 30 --out FILE
+
+``--checkpoint`` measures a trained agent instead: the checkpoint's networks and planner settings, planning from
+observations of a short random rollout of the run's own environment (one per call), so that the agreement of the two
+planners is checked on the latents and returns a training run actually plans with.
 """
 from __future__ import annotations
 
@@ -49,12 +54,36 @@ def _graphs() -> int:
     return int(counters["stats"]["unique_graphs"])
 
 
-def measure(name: str, calls: int) -> dict:
+def setting_inputs(name: str) -> tuple:
+    """Random networks of a named setting: (modules, planner config, observations per call, action dim, note)."""
     model, planner_cfg, shapes, action_dim, note = SETTINGS[name]
     torch.manual_seed(0)
-    modules = MPAIL2Modules(shapes, action_dim, model)
-    spec = Bounded(-1, 1, (action_dim,))
     obs = TensorDict(random_observations(shapes, 1), [1])
+    return MPAIL2Modules(shapes, action_dim, model), planner_cfg, lambda i: obs, action_dim, note
+
+
+def checkpoint_inputs(path: str, steps: int) -> tuple:
+    """A trained agent's networks and planner settings, and observations of a random rollout of its environment."""
+    from torchrl_mpail2.agents.mpail2 import MPAIL2Agent
+    from torchrl_mpail2.envs import make_env
+
+    agent = MPAIL2Agent.from_checkpoint(path)
+    train = agent.run_config["train"]
+    env = make_env(train["env"], obs=train["obs"], seed=0, **(train.get("env_kwargs") or {}))
+    try:
+        rollout = env.rollout(steps, break_when_any_done=False)
+    finally:
+        env.close()
+    keys = list(env.observation_spec.keys())
+    planner_cfg = PlannerConfig(**{**vars(agent.planner.cfg), "compile": False})
+    return (agent.modules, planner_cfg, lambda i: rollout[i % steps].select(*keys).unsqueeze(0),
+            agent.modules.action_dim, f"checkpoint {path}")
+
+
+def measure(inputs: tuple, calls: int) -> dict:
+    modules, planner_cfg, observation, action_dim, note = inputs
+    spec = Bounded(-1, 1, (action_dim,))
+    obs = observation(0)
     planners = {
         compiled: LatentMPPIPlanner(modules, spec, PlannerConfig(**{**vars(planner_cfg), "compile": compiled}),
                                     generator=torch.Generator().manual_seed(0))
@@ -76,10 +105,10 @@ def measure(name: str, calls: int) -> dict:
         planner.reset()
         planner.generator.manual_seed(1)
     samples, difference = {False: [], True: []}, 0.0
-    for _ in range(calls):
+    for call in range(calls):
         actions = {}
         for compiled, planner in planners.items():
-            td = obs.clone()
+            td = observation(call).clone()
             start = time.perf_counter()
             actions[compiled] = planner(td)["action"]
             samples[compiled].append(time.perf_counter() - start)
@@ -113,6 +142,7 @@ def markdown(results: dict, meta: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument("--checkpoint", help="measure this training checkpoint's agent instead of --settings")
     parser.add_argument("--calls", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--load", default="", help="what else ran on the machine (written into the results)")
@@ -120,8 +150,10 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     results = {}
-    for name in args.settings:
-        results[name] = measure(name, args.calls)
+    named = {"checkpoint": lambda: checkpoint_inputs(args.checkpoint, args.calls)} if args.checkpoint else {
+        name: (lambda name=name: setting_inputs(name)) for name in args.settings}
+    for name, inputs in named.items():
+        results[name] = measure(inputs(), args.calls)
         print(name, results[name], flush=True)
     meta = {"threads": args.threads, "calls": args.calls, "load": args.load, "machine": machine(),
             "torch": torch.__version__}
