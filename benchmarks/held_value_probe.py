@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrl_mpail2.diagnostics.held_replays import episode_outcome, played_paths, tested_steps
+from torchrl_mpail2.diagnostics.held_replays import GRIPPER_CLOSING, episode_outcome, played_paths, tested_steps
 from torchrl_mpail2.diagnostics.lift_phases import play_lift_episodes
 from torchrl_mpail2.trainers.evaluation import evaluation_env, evaluation_seeds, run_eval_seed
 
-FIXED = {"hold": (0.0, 0.0, 0.0, 1.0), "up": (0.0, 0.0, 1.0, 1.0), "down": (0.0, 0.0, -1.0, 1.0),
-         "open": (0.0, 0.0, 0.0, -1.0)}
+FIXED = {"hold": (0.0, 0.0, 0.0, GRIPPER_CLOSING), "up": (0.0, 0.0, 1.0, GRIPPER_CLOSING),
+         "down": (0.0, 0.0, -1.0, GRIPPER_CLOSING), "open": (0.0, 0.0, 0.0, -GRIPPER_CLOSING)}
 PLANS = {"after_up": "up", "after_still": "hold", "after_down": "down"}
 
 

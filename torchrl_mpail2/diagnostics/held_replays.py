@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from torchrl.envs.utils import step_mdp
 
-from torchrl_mpail2.diagnostics.lift_phases import held_states
+from torchrl_mpail2.diagnostics.lift_phases import hand_height, held_states
 
 __all__ = ["GRIPPER_CLOSING", "check_replay_args", "cube_and_hand_heights", "episode_outcome", "hold_action",
            "played_paths", "replay_to", "straight_lift_from_held_states", "tested_steps"]
@@ -18,9 +18,7 @@ GRIPPER_CLOSING = 1.0
 
 def cube_and_hand_heights(obj: torch.Tensor) -> torch.Tensor:
     """``[*B, 2]``: the cube's and the end effector's heights (m) from the ``"object"`` observation."""
-    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
-
-    return torch.stack([obj[..., 2], obj[..., 2] + obj[..., OBJECT_EEF_TO_CUBE][..., 2]], dim=-1)
+    return torch.stack([obj[..., 2], hand_height(obj)], dim=-1)
 
 
 def tested_steps(rollout, every: int) -> np.ndarray:

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["cube_rise_m", "grasped_without_success", "held_states", "lift_phases", "play_lift_episodes",
+__all__ = ["cube_rise_m", "grasped_without_success", "hand_height", "held_states", "lift_phases", "play_lift_episodes",
            "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
@@ -73,6 +73,13 @@ def cube_rise_m(obj: np.ndarray) -> np.ndarray:
     return obj[:, 2] - obj[min(SETTLED_STEP, len(obj) - 1), 2]
 
 
+def hand_height(obj):
+    """``[*B]``: the end effector's height (m) from the ``"object"`` observation ``[*B, D]`` (array or tensor)."""
+    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+
+    return obj[..., 2] + obj[..., OBJECT_EEF_TO_CUBE][..., 2]
+
+
 def held_states(rollout: TensorDictBase) -> np.ndarray:
     """``[T]`` booleans: after step ``t`` (``rollout["next"][t]``) the fingers hold something within reach of the
     cube (the ``grasp`` phase's test)."""
@@ -84,12 +91,10 @@ def lift_phases(rollout: TensorDictBase) -> dict:
     """The phases one Lift episode reached, from its rollout ``[T]`` (``rollout()`` output: observations and
     ``("next", ...)``). Raises ``ValueError`` naming a missing key (``"proprio"`` / ``"object"``: state mode)."""
     _check_state_keys(rollout)
-    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
-
     proprio, obj = rollout["next", "proprio"].numpy(), rollout["next", "object"].numpy()
     distance, near, closing, held = _reach_closing_held(proprio, obj)
     rise = cube_rise_m(obj)
-    hand_z = obj[:, 2] + obj[:, OBJECT_EEF_TO_CUBE][:, 2]
+    hand_z = hand_height(obj)
     first_grasp = int(np.argmax(held)) if held.any() else None
     held_actions = rollout["action"].numpy()[1:][held[:-1]]  # the action taken in each held state
     success = rollout.get(("next", "success"), None)
