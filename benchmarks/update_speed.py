@@ -12,7 +12,10 @@ window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``o
 autocast, float32 weights, gradients and optimisers). Any variant may end in ``_compiled``: the dynamics, policy and
 Q-ensemble networks compiled with ``torch.compile`` (forward and backward; the reward network stays eager, since its
 gradient penalty needs a double backward, which compiled graphs do not support); its first update, which compiles,
-is timed apart (``first_update_ms``).
+is timed apart (``first_update_ms``). Any variant may also end in ``_sync_free`` (before ``_compiled`` where both):
+``MPAIL2Updater(sync_free_skips=True)``, i.e. fused Adam (one kernel per parameter group rather than torch's
+multi-tensor loop) handed each stage's not-finite flag instead of a host check per stage; the default on CPU is
+``False``.
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -36,6 +39,7 @@ from _child_env import child_env  # noqa: E402
 from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
 COMPILED = "_compiled"
+SYNC_FREE = "_sync_free"
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
             "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",
             "one_transition_per_window_mixed_bf16")
@@ -75,6 +79,8 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
     modules = setting.modules()
     compiled = variant.endswith(COMPILED)
     variant = variant.removesuffix(COMPILED)
+    sync_free = variant.endswith(SYNC_FREE)
+    variant = variant.removesuffix(SYNC_FREE)
     if compiled:
         import torch._dynamo
         torch._dynamo.config.cache_size_limit = 64  # several call shapes per network (windows, rollouts)
@@ -92,7 +98,7 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
     with context:
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
                                 bf16_stop_gradient=variant.endswith(("bf16_stop_gradient", "window_bf16")),
-                                bf16=variant.endswith("mixed_bf16"))
+                                bf16=variant.endswith("mixed_bf16"), sync_free_skips=sync_free)
         t = time.perf_counter()
         updater.update(td)  # warm-up: optimiser state, allocator (and compilation)
         compile_s = time.perf_counter() - t
@@ -196,8 +202,9 @@ def main() -> None:
         return
     settings, variants = args.settings.split(","), args.variants.split(",")
     for variant in variants:
-        if variant.removesuffix(COMPILED) not in VARIANTS:
-            p.error(f"unknown variant {variant!r}; variants: {', '.join(VARIANTS)}, each optionally + {COMPILED!r}")
+        if variant.removesuffix(COMPILED).removesuffix(SYNC_FREE) not in VARIANTS:
+            p.error(f"unknown variant {variant!r}; variants: {', '.join(VARIANTS)}, each optionally + {SYNC_FREE!r} "
+                    f"and/or {COMPILED!r}")
     for setting in settings:
         if setting not in SETTINGS:
             p.error(f"unknown setting {setting!r}; settings: {', '.join(SETTINGS)}")
