@@ -14,8 +14,8 @@ Q-ensemble networks compiled with ``torch.compile`` (forward and backward; the r
 gradient penalty needs a double backward, which compiled graphs do not support); its first update, which compiles,
 is timed apart (``first_update_ms``). Any variant may also end in ``_sync_free`` (before ``_compiled`` where both):
 ``MPAIL2Updater(sync_free_skips=True)``, i.e. fused Adam (one kernel per parameter group rather than torch's
-multi-tensor loop) handed each stage's not-finite flag instead of a host check per stage; the default on CPU is
-``False``.
+multi-tensor loop) handed each stage's not-finite flag instead of a host check per stage; variants without it keep
+the updater's default (host checks on CPU, sync-free on CUDA).
 
     python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
     python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
@@ -98,7 +98,7 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
     with context:
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
                                 bf16_stop_gradient=variant.endswith(("bf16_stop_gradient", "window_bf16")),
-                                bf16=variant.endswith("mixed_bf16"), sync_free_skips=sync_free)
+                                bf16=variant.endswith("mixed_bf16"), sync_free_skips=True if sync_free else None)
         t = time.perf_counter()
         updater.update(td)  # warm-up: optimiser state, allocator (and compilation)
         compile_s = time.perf_counter() - t
