@@ -72,15 +72,20 @@ def _instrument(updater, record: dict) -> None:
     updater._step = lambda stage, value: timed(f"{stage} backward + step", step)(stage, value)
 
 
+def split_variant(variant: str) -> tuple[str, bool, bool]:
+    """``NAME[_sync_free][_compiled]`` -> ``(NAME, sync_free, compiled)``."""
+    compiled = variant.endswith(COMPILED)
+    variant = variant.removesuffix(COMPILED)
+    sync_free = variant.endswith(SYNC_FREE)
+    return variant.removesuffix(SYNC_FREE), sync_free, compiled
+
+
 def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int, profile: bool) -> dict:
     from torchrl_mpail2 import LossConfig, MPAIL2Loss, MPAIL2Updater
 
     setting = SETTINGS[setting_name]
     modules = setting.modules()
-    compiled = variant.endswith(COMPILED)
-    variant = variant.removesuffix(COMPILED)
-    sync_free = variant.endswith(SYNC_FREE)
-    variant = variant.removesuffix(SYNC_FREE)
+    variant, sync_free, compiled = split_variant(variant)
     if compiled:
         import torch._dynamo
         torch._dynamo.config.cache_size_limit = 64  # several call shapes per network (windows, rollouts)
@@ -202,7 +207,7 @@ def main() -> None:
         return
     settings, variants = args.settings.split(","), args.variants.split(",")
     for variant in variants:
-        if variant.removesuffix(COMPILED).removesuffix(SYNC_FREE) not in VARIANTS:
+        if split_variant(variant)[0] not in VARIANTS:
             p.error(f"unknown variant {variant!r}; variants: {', '.join(VARIANTS)}, each optionally + {SYNC_FREE!r} "
                     f"and/or {COMPILED!r}")
     for setting in settings:
