@@ -11,7 +11,7 @@ pytest.importorskip("robosuite")
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 from torchrl_mpail2.envs.robosuite_control import MAX_EEF_DELTA, WORKSPACE_HIGH, WORKSPACE_LOW  # noqa: E402
-from torchrl_mpail2.envs.robosuite_env import PROPRIO_DIM, make_robosuite_env  # noqa: E402
+from torchrl_mpail2.envs.robosuite_env import PROPRIO_DIM, RobosuiteEnv, make_robosuite_env  # noqa: E402
 from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert  # noqa: E402
 
 STATE_TASKS = ("Lift", "Push", "PushMirrored")
@@ -298,3 +298,62 @@ def test_render_draws_the_scene_in_state_mode_too():
     # the cube (red) lies below the image centre row: the frame is upright
     red = np.argwhere((frame[..., 0] > 150) & (frame[..., 1] < 80) & (frame[..., 2] < 80))
     assert len(red) > 0 and red[:, 0].mean() > 96 / 3
+
+
+def test_light_renderer_settings_and_full_renderer_keeps_robosuites():
+    from torchrl_mpail2.envs.robosuite_render import HEAVY_SCENE_FLAGS
+
+    light = RobosuiteEnv("Push", obs="external_pixels", seed=0)
+    full = RobosuiteEnv("Push", obs="external_pixels", seed=0, renderer="full")
+    try:
+        for env, samples, side, flag in ((light, 0, 64, 0), (full, 4, 640, 1)):
+            context = env.sim_env.sim._render_context_offscreen
+            assert context.con.offSamples == samples and context.con.offWidth == side
+            assert all(context.scn.flags[f] == flag for f in HEAVY_SCENE_FLAGS)
+        # the same state through both renderers: the same scene (the cube where it is), not the same pixels
+        a, b = light.reset()["external_image"].float(), full.reset()["external_image"].float()
+        assert (a - b).abs().mean() < 20 and not torch.equal(a, b)
+    finally:
+        light.close(), full.close()
+    with pytest.raises(ValueError, match="unknown renderer 'fast'; valid renderers: light, full"):
+        RobosuiteEnv("Push", obs="pixels", renderer="fast")
+
+
+def test_each_env_renders_into_its_own_context():
+    """robosuite renders into the GL context made current last: a second env with a larger buffer (a 256-pixel
+    video frame) must not change the first env's camera frames."""
+    first = RobosuiteEnv("Lift", obs="pixels", seed=3)
+    second = RobosuiteEnv("Lift", obs="pixels", seed=4)
+    try:
+        first.set_seed(3)
+        before = first.reset()
+        second.reset()
+        assert second.render(size=256).shape == (256, 256, 3)
+        first.set_seed(3)
+        after = first.reset()
+        for key in IMAGE_KEYS:
+            assert torch.equal(before[key], after[key]), key
+    finally:
+        first.close(), second.close()
+
+
+def test_recorder_and_learner_envs_render_identical_frames():
+    """A demonstration recorder's env and the learner's env, built apart, render bit-identical camera frames of the
+    same simulator state, at reset and when the state is set from a recording."""
+    recorder, learner = RobosuiteEnv("Push", obs="pixels", seed=3), RobosuiteEnv("Push", obs="pixels", seed=8)
+    try:
+        recorder.set_seed(3)
+        recorded = recorder.reset()  # a reset ends on mj_forward: its frames show the state it leaves
+        learner.reset()
+        seen = learner.observe_state(recorder.sim_env.sim.get_state().flatten())
+        td = recorded
+        for _ in range(5):
+            td = recorder.rand_step(td)["next"]
+        state = recorder.sim_env.sim.get_state().flatten()
+        again, seen_again = recorder.observe_state(state), learner.observe_state(state)
+        for key in IMAGE_KEYS:
+            assert torch.equal(recorded[key], seen[key]), key
+            assert torch.equal(again[key], seen_again[key]), key
+            assert not torch.equal(seen[key], seen_again[key]), key  # the arm moved: the frames are not constant
+    finally:
+        recorder.close(), learner.close()

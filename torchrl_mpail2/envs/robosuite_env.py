@@ -43,6 +43,7 @@ from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
 from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
+from torchrl_mpail2.envs.robosuite_render import check_renderer, make_renderer_current, use_light_renderer  # noqa: E402
 from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
     CONTROL_FREQ_HZ, GRIPPER_CLOSED, MAX_EEF_DELTA, OSC_POSITION_ARM, binary_gripper_state, check_control_settings,
     position_command,
@@ -94,9 +95,12 @@ class RobosuiteEnv(EnvBase):
             default). A smaller value gives finer steps for the same action noise and slows the hand in
             proportion (the scripted Lift expert first succeeds at steps 33 / 31 / 49 of seeds 0-2 at 5 cm,
             47 / 45 / 82 at 3 cm); demos recorded by the scripted experts in such an env move with the same scale.
+        renderer: one of :data:`~torchrl_mpail2.envs.robosuite_render.RENDERERS`: ``"light"`` (default; see
+            :func:`~torchrl_mpail2.envs.robosuite_render.use_light_renderer`) or ``"full"`` (robosuite's own
+            settings: shadows, reflections, 4x multisampling; about 4 times the cost of a camera frame).
 
     Raises:
-        ValueError: on an unknown task, observation mode or gripper mode, or a ``max_eef_delta`` outside
+        ValueError: on an unknown task, observation mode, gripper mode or renderer, or a ``max_eef_delta`` outside
             ``(0, 0.05]``.
         RuntimeError: from :meth:`step` when the simulator fails (exception or unstable physics); the message
             names the task. Reset the env before using it again.
@@ -121,8 +125,10 @@ class RobosuiteEnv(EnvBase):
         gripper: str = "integrating",
         observe_gripper_command: bool = False,
         max_eef_delta: float = MAX_EEF_DELTA,
+        renderer: str = "light",
     ):
         _check_names(task, obs)
+        check_renderer(renderer)
         self.max_eef_delta = check_control_settings(gripper, max_eef_delta)
         self.gripper_mode = gripper
         self.observe_gripper_command = bool(observe_gripper_command)
@@ -155,8 +161,15 @@ class RobosuiteEnv(EnvBase):
             hard_reset=False,
             seed=seed,
         )
+        self.renderer = renderer
+        self._configure_renderer()
         self._steps_taken = 0
         self._make_specs()
+
+    def _configure_renderer(self) -> None:
+        """The light renderer for the cameras (robosuite builds a context with its full settings with each model)."""
+        if self._cameras and self.renderer == "light":
+            use_light_renderer(self._sim_env.sim, IMAGE_SIZE)
 
     # -- specs ------------------------------------------------------------------------------------------------
 
@@ -230,6 +243,7 @@ class RobosuiteEnv(EnvBase):
             MjRenderContextOffscreen(sim, device_id=-1)  # registers itself with the sim
             sim._render_context_offscreen.vopt.geomgroup[0] = 0  # collision meshes hidden,
             sim._render_context_offscreen.vopt.geomgroup[1] = 1  # visual meshes shown, as robosuite's cameras
+        make_renderer_current(sim)
         return np.ascontiguousarray(sim.render(width=size, height=size, camera_name=camera)[::-1])
 
     # -- replaying recorded simulator states (robosuite's teleoperation files) ---------------------------------
@@ -237,6 +251,7 @@ class RobosuiteEnv(EnvBase):
     def load_model_xml(self, xml: str) -> None:
         """Rebuilds the simulation from a recorded MJCF model (robosuite's ``model_file``: the recorded cube size)."""
         self._sim_env.reset_from_xml_string(xml)
+        self._configure_renderer()
         self.reset_gripper_command()
         self._steps_taken = 0
 
@@ -249,6 +264,7 @@ class RobosuiteEnv(EnvBase):
         sim = self._sim_env.sim
         sim.set_state_from_flattened(np.asarray(flat_state, dtype=np.float64))
         sim.forward()
+        make_renderer_current(sim)
         return self._observation_td(self._sim_env._get_observations(force_update=True))
 
     def apply_gripper_command(self, sim_action: np.ndarray) -> None:
@@ -267,6 +283,7 @@ class RobosuiteEnv(EnvBase):
         self._sim_env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        make_renderer_current(self._sim_env.sim)
         try:
             sim_obs = self._sim_env.reset()
         except Exception as error:
@@ -280,6 +297,7 @@ class RobosuiteEnv(EnvBase):
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self._to_sim_action(tensordict.get("action"))
         warnings_before = self._instability_warning_counts()
+        make_renderer_current(self._sim_env.sim)
         try:
             sim_obs, task_reward, _, _ = self._sim_env.step(action)
         except Exception as error:
@@ -378,6 +396,7 @@ def make_robosuite_env(
     gripper: str = "integrating",
     observe_gripper_command: bool = False,
     max_eef_delta: float = MAX_EEF_DELTA,
+    renderer: str = "light",
 ) -> TransformedEnv:
     """Build a seeded :class:`RobosuiteEnv` with step counting, init tracking and an episode task-return sum.
 
@@ -387,7 +406,7 @@ def make_robosuite_env(
         seed: seed of robosuite's generator (cube placement, initial joint noise).
         horizon: episode length in steps; the task default when ``None``.
         device: device of the output tensors.
-        gripper, observe_gripper_command, max_eef_delta: see :class:`RobosuiteEnv`.
+        gripper, observe_gripper_command, max_eef_delta, renderer: see :class:`RobosuiteEnv`.
 
     Returns:
         The env under ``StepCounter``, ``InitTracker`` (``"is_init"``) and
@@ -398,6 +417,7 @@ def make_robosuite_env(
     """
     _check_names(task, obs)
     base_env = RobosuiteEnv(task, obs, horizon=horizon, seed=seed, device=device, gripper=gripper,
-                            observe_gripper_command=observe_gripper_command, max_eef_delta=max_eef_delta)
+                            observe_gripper_command=observe_gripper_command, max_eef_delta=max_eef_delta,
+                            renderer=renderer)
     base_env.set_seed(seed)
     return with_bookkeeping(base_env)
