@@ -26,10 +26,13 @@ class Setting:
     observations: dict
     action_dim: int
     note: str
+    coder_dims: tuple[int, int] | None = None
+    """``(vector_coder_hidden, coder_dim)``; None keeps :class:`ModelConfig`'s (Table 4)."""
 
     def modules(self, seed: int = 0) -> MPAIL2Modules:
         torch.manual_seed(seed)
-        cfg = ModelConfig(latent_dim=self.latent_dim, hidden_dims=(self.hidden, self.hidden))
+        coders = {} if self.coder_dims is None else dict(zip(("vector_coder_hidden", "coder_dim"), self.coder_dims))
+        cfg = ModelConfig(latent_dim=self.latent_dim, hidden_dims=(self.hidden, self.hidden), **coders)
         return MPAIL2Modules(self.observations, self.action_dim, cfg)
 
 
@@ -40,6 +43,10 @@ SETTINGS = {
                      "Hopper-size networks (latent 256, hidden [256, 256]), Hopper observations, A=3"),
     "cameras": Setting("cameras", 512, 512, {"proprio": [26], "external_image": list(IMAGE), "wrist_image": list(IMAGE)}, 4,
                        "Table 4 networks, proprio [26] + two 64x64 uint8 cameras, A=4"),
+    "cameras_cpu": Setting("cameras_cpu", 128, 256, {"proprio": [27], "external_image": list(IMAGE),
+                                                      "wrist_image": list(IMAGE)}, 3,
+                           "the CPU presets' networks (latent 128, hidden [256, 256], coders 128 / 256), proprio [27] "
+                           "+ two 64x64 uint8 cameras, A=3 (Push)", (128, 256)),
 }
 
 

@@ -216,3 +216,29 @@ def test_normalisation_from_demos_names_a_missing_key_or_a_wrong_shape():
     wrong = demos_from_arrays([{"observation": torch.zeros(4, 4), "proprio": torch.zeros(4, 2)}])
     with pytest.raises(ValueError, match=r"'observation' has shape \[4\] in the demonstrations .* \[3\] in the encoder"):
         modules.normalize_from_demos(wrong)
+
+
+def test_image_coder_channels_last_computes_the_plain_cnn():
+    """The channels-last convolutions against the plain computation written out with F.conv2d on contiguous
+    tensors, for outputs and for the gradients of every parameter."""
+    import torch.nn.functional as F
+
+    from torchrl_mpail2.modules.encoder import ImageCoder
+
+    torch.manual_seed(0)
+    coder = ImageCoder((3, 64, 64), 8, 16)
+    images = torch.randint(0, 256, (2, 5, 3, 64, 64), dtype=torch.uint8)
+
+    def plain(x):
+        h = x.reshape(-1, 3, 64, 64).float() / 255.0 - 0.5
+        for conv in (m for m in coder.convs if isinstance(m, torch.nn.Conv2d)):
+            h = F.silu(F.conv2d(h, conv.weight.contiguous(), conv.bias, stride=conv.stride))
+        return F.silu(F.linear(h.flatten(1), coder.out[0].weight, coder.out[0].bias)).reshape(2, -1, 16)
+
+    got, want = coder(images), plain(images)
+    assert got.shape == (2, 5, 16)
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
+    grads = torch.autograd.grad(got.square().sum(), list(coder.parameters()))
+    want_grads = torch.autograd.grad(want.square().sum(), list(coder.parameters()))
+    for g, w in zip(grads, want_grads):
+        torch.testing.assert_close(g, w, rtol=1e-4, atol=1e-6)
