@@ -119,8 +119,8 @@ def test_get_expert(tmp_path, monkeypatch):
 def test_factory_rejects_bad_arguments():
     with pytest.raises(ValueError, match="gym/Humanoid-v5"):
         make_env("point_mas")
-    with pytest.raises(ValueError, match="only supported for robosuite"):
-        make_env("point_mass", obs="pixels")
+    with pytest.raises(ValueError, match="'gym/Hopper-v5' has no observation mode 'pixels'; its modes: state."):
+        make_env("gym/Hopper-v5", obs="pixels")
 
 
 def test_factory_routes_robosuite_names(monkeypatch):

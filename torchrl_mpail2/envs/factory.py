@@ -14,7 +14,7 @@ import torch
 from torchrl.envs import SerialEnv, TransformedEnv
 
 from torchrl_mpail2.envs.keys import with_bookkeeping
-from torchrl_mpail2.envs.names import ENV_NAMES, POINT_MASS
+from torchrl_mpail2.envs.names import ENV_NAMES, POINT_MASS, obs_modes_of
 from torchrl_mpail2.envs.point_mass import PointMassEnv
 
 __all__ = ["ENV_NAMES", "make_env", "with_bookkeeping"]
@@ -33,8 +33,9 @@ def make_env(
         name (str): one of :data:`ENV_NAMES`: ``"point_mass"``, ``"robosuite/Lift"``,
             ``"robosuite/Push"``, ``"robosuite/PushMirrored"``, ``"gym/Hopper-v5"``,
             ``"gym/Ant-v5"``, ``"gym/Humanoid-v5"``.
-        obs (str): observation mode. Only robosuite tasks accept anything other than
-            ``"state"`` (what they accept is up to :func:`make_robosuite_env`). Defaults to ``"state"``.
+        obs (str): observation mode, one of ``obs_modes_of(name)`` (:mod:`~torchrl_mpail2.envs.names`):
+            ``"state"`` everywhere; ``"pixels"`` for the point mass (a 64 x 64 picture) and robosuite;
+            ``"external_pixels"`` for robosuite. Defaults to ``"state"``.
         seed (int): seed of the env (of the first sub-env when ``num_envs`` is given).
         num_envs (int, optional): if given, a batch of ``num_envs`` envs with ``batch_size=[num_envs]``
             (one batched :class:`PointMassEnv`; a :class:`~torchrl.envs.SerialEnv` otherwise, since
@@ -46,8 +47,8 @@ def make_env(
         TransformedEnv: the environment.
 
     Raises:
-        ValueError: for an unknown name (the message lists the valid ones) or for ``obs != "state"``
-            on a non-robosuite env.
+        ValueError: for an unknown name or an observation mode the env does not have (the message lists
+            the valid ones).
 
     Examples:
         >>> env = make_env("point_mass", seed=0, num_envs=2)
@@ -57,18 +58,24 @@ def make_env(
         Traceback (most recent call last):
         ...
         ValueError: Unknown env 'cartpole'. Valid names: point_mass, robosuite/Lift, ..., gym/Humanoid-v5.
+        >>> make_env("point_mass", obs="pixels").observation_spec["external_image"].shape
+        torch.Size([3, 64, 64])
+        >>> make_env("gym/Hopper-v5", obs="pixels")
+        Traceback (most recent call last):
+        ...
+        ValueError: 'gym/Hopper-v5' has no observation mode 'pixels'; its modes: state.
     """
     if name not in ENV_NAMES:
         raise ValueError(f"Unknown env {name!r}. Valid names: {', '.join(ENV_NAMES)}.")
     family, _, task = name.partition("/")
-    if obs != "state" and family != "robosuite":
-        raise ValueError(f"obs={obs!r} is only supported for robosuite tasks; {name!r} only has obs='state'.")
+    if obs not in obs_modes_of(name):
+        raise ValueError(f"{name!r} has no observation mode {obs!r}; its modes: {', '.join(obs_modes_of(name))}.")
     if num_envs is not None and num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer or None, got {num_envs}.")
 
     if family == POINT_MASS:
         batch_size = () if num_envs is None else (num_envs,)
-        return with_bookkeeping(PointMassEnv(batch_size=batch_size, device=device, seed=seed, **kwargs))
+        return with_bookkeeping(PointMassEnv(batch_size=batch_size, device=device, seed=seed, obs=obs, **kwargs))
 
     if family == "robosuite":
         # Imported lazily: robosuite is an optional dependency and slow to import.

@@ -12,7 +12,7 @@ import torch
 
 from torchrl_mpail2.agents.switches import ABLATIONS, UPDATE_PRECISIONS, resolve_update_precision
 from torchrl_mpail2.data.sources import resolve_demo_source
-from torchrl_mpail2.envs.names import OBS_MODES
+from torchrl_mpail2.envs.names import OBS_MODES, obs_modes_of
 from torchrl_mpail2.trainers.evaluation import ACTING, DEFAULT_EVAL_SEED
 from torchrl_mpail2.config import (
     AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, ConfigError, LossConfig, ModelConfig, PlannerConfig, Range, build_section,
@@ -30,7 +30,7 @@ class TrainConfig:
     env: str = "robosuite/Lift"
     """Environment name understood by ``torchrl_mpail2.envs.make_env``."""
     obs: str = "state"
-    """Observation mode (robosuite: state | pixels | external_pixels)."""
+    """Observation mode, one of the env family's in ``envs.names.FAMILY_OBS_MODES`` (state, pixels, ...)."""
     env_kwargs: dict | None = None
     """Extra keyword arguments of ``make_env`` (JSON on the command line), e.g. robosuite's
     ``{"observe_gripper_command": true}`` or ``{"gripper": "binary"}``; demos are recorded with the same."""
@@ -135,6 +135,9 @@ class TrainConfig:
         check_fields(self)
         if self.obs not in OBS_MODES:
             raise ConfigError(f"unknown TrainConfig.obs {self.obs!r}; choose from {OBS_MODES}")
+        if obs_modes_of(self.env) and self.obs not in obs_modes_of(self.env):  # () for an env of a custom env_fn
+            raise ConfigError(f"TrainConfig.obs={self.obs!r} is not a mode of {self.env!r}; "
+                              f"choose from {obs_modes_of(self.env)}")
         if self.ablation not in ABLATIONS:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         if self.warmup_episodes >= self.total_episodes:
