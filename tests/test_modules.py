@@ -211,7 +211,7 @@ def test_normalisation_from_demos_names_a_missing_key_or_a_wrong_shape():
     from torchrl_mpail2.data import demos_from_arrays
 
     modules = MPAIL2Modules({"observation": [3], "proprio": [2]}, A, ModelConfig(**TINY))
-    with pytest.raises(KeyError, match=r"\['proprio'\] are not in the demonstrations"):
+    with pytest.raises(KeyError, match=r"reads observation keys \['proprio'\] that the demonstrations"):
         modules.normalize_from_demos(demos_from_arrays([torch.zeros(4, 3)]))
     wrong = demos_from_arrays([{"observation": torch.zeros(4, 4), "proprio": torch.zeros(4, 2)}])
     with pytest.raises(ValueError, match=r"'observation' has shape \[4\] in the demonstrations .* \[3\] in the encoder"):

@@ -27,10 +27,19 @@ def test_a_bad_obs_flag_is_refused_by_name():
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
-def test_every_preset_builds_and_the_pixel_presets_have_the_image_latent(name):
+def test_every_preset_builds_and_the_paper_pixel_preset_has_the_image_latent(name):
     cfg = preset(name)
-    if cfg.train.obs != "state":
+    if name.startswith("paper") and cfg.train.obs != "state":
         assert cfg.model.latent_dim == 512  # Table 4
+
+
+def test_the_cpu_camera_presets_are_their_state_presets_with_cameras_batch_64_and_utd_half():
+    for pixels, state in (("push_pixels", "push_state"), ("lift_pixels", "lift_state")):
+        got, want = preset(pixels).to_dict(), preset(state).to_dict()
+        assert (got["train"].pop("obs"), got["train"].pop("batch_size"), got["train"].pop("utd")) == ("pixels", 64, 0.5)
+        for key in ("obs", "batch_size", "utd"):
+            want["train"].pop(key)
+        assert got == want
 
 
 def test_lift_uses_the_raw_critic_with_penalty_10_and_push_keeps_the_reward_it_was_measured_with():

@@ -6,6 +6,7 @@ import json
 import os
 import shutil
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -109,19 +110,26 @@ def _check_contents(observations: TensorDict, header: dict) -> None:
         raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
 
 
-def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase) -> None:
+def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase,
+                           keys: Sequence[str] | None = None) -> None:
     """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
 
     The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
-    rather than its spec so that its own bookkeeping transforms are recognised); batch dimensions of the
+    rather than its spec so that its own bookkeeping transforms are recognised), or ``keys`` (some of them: the
+    demos must hold those and may lack the others, as video-only demonstrations do); batch dimensions of the
     spec are stripped before shapes are compared.
     """
     spec_keys = observation_keys_of(observation_spec)
+    if keys is not None:
+        unknown = [key for key in keys if key not in spec_keys]
+        if unknown:
+            raise ValueError(f"demonstration keys {unknown} are not observation keys of the env {spec_keys}")
+        spec_keys = [key for key in spec_keys if key in keys]
     if isinstance(observation_spec, EnvBase):
         observation_spec = observation_spec.observation_spec
     demo_keys = demos.observation_keys
     missing = [key for key in spec_keys if key not in demo_keys]
-    extra = [key for key in demo_keys if key not in spec_keys]
+    extra = [key for key in demo_keys if key not in spec_keys and key not in (keys or ())]
     if missing or extra:
         raise ValueError(
             f"Demonstrations ({demos.env_id}) do not match the observation spec: "
@@ -142,7 +150,8 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite | 
             )
 
 
-def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True) -> Demonstrations:
+def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True,
+               keys: Sequence[str] | None = None) -> Demonstrations:
     """Loads and validates demonstrations written by :func:`save_demos`.
 
     Every stored file is checked against the byte size and sha256 recorded in the header before
@@ -154,6 +163,8 @@ def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = 
         observation_spec (Composite or EnvBase, optional): an env (or its observation spec) to check keys and
             shapes against (:func:`check_observation_spec`).
         verify (bool): also compare sha256 checksums (sizes are always checked). Defaults to ``True``.
+        keys (Sequence[str], optional): keep only these observation keys, which the demos must hold; the spec's
+            other keys may be missing (``train.demo_keys``: video-only demonstrations).
 
     Raises:
         DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files, NaN or Inf
@@ -172,6 +183,8 @@ def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = 
     except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:
         raise DemoFormatError(f"{path} is truncated or corrupted: {type(error).__name__}: {error}") from error
     demos = Demonstrations(observations=observations, header=header)
+    if keys is not None:
+        demos = demos.with_keys(keys)
     if observation_spec is not None:
-        check_observation_spec(demos, observation_spec)
+        check_observation_spec(demos, observation_spec, keys)
     return demos

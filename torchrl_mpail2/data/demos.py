@@ -156,6 +156,22 @@ class Demonstrations:
         returns = [meta["task_return"] for meta in episodes if meta.get("task_return") is not None]
         return sum(returns) / len(returns) if returns else math.nan
 
+    def with_keys(self, keys: Sequence) -> Demonstrations:
+        """The same episodes holding only the observation keys ``keys`` (e.g. the table camera's frames alone, for
+        the paper's video-only demonstrations).
+
+        Raises:
+            KeyError: naming the keys the demonstrations do not hold, and the keys they do.
+        """
+        keys = list(keys)
+        missing = [key for key in keys if key not in self.observation_keys]
+        if missing or not keys:
+            raise KeyError(f"demonstrations ({self.env_id}) hold no observation keys {missing or keys}; "
+                           f"their keys: {self.observation_keys}")
+        kept = [entry for entry in self.header["observation_keys"] if _key_from_json(entry["key"]) in keys]
+        return Demonstrations(self.observations.select(*keys, *INDEX_KEYS),
+                              {**{k: v for k, v in self.header.items() if k != "files"}, "observation_keys": kept})
+
     def observation_stats(self, keys: Sequence | None = None) -> dict:
         """Per-dimension ``(mean, std)`` over all stored observations of floating-point keys.
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from torchrl_mpail2.data.demo_files import check_observation_spec, load_demos
@@ -39,19 +40,22 @@ def resolve_demo_source(source: str | Path) -> str:
     return resolved if prefix is None else f"{prefix}:{resolved}"
 
 
-def load_demo_source(source: str | Path, env=None, *, progress: bool = False) -> Demonstrations:
+def load_demo_source(source: str | Path, env=None, *, progress: bool = False,
+                     keys: Sequence[str] | None = None) -> Demonstrations:
     """Demonstrations from ``source``: a demo folder (:func:`load_demos`), or ``<format>:<path>`` with a format
     of :data:`DEMO_SOURCES` (e.g. ``robosuite_hdf5:demo.hdf5``), imported through ``env`` and checked against its
     observation spec. This is what ``train.demos=...`` accepts."""
     text = str(source)
     prefix, path = _split(source)
     if prefix is None:
-        return load_demos(source, env)
+        return load_demos(source, env, keys=keys)
     if prefix not in DEMO_SOURCES:
         raise ValueError(f"unknown demonstration source prefix {prefix!r} in {text!r}; known: {sorted(DEMO_SOURCES)} "
                          "(or a demo folder path)")
     if env is None:
         raise ValueError(f"importing {text!r} needs the env to replay or check the observations")
     demos = DEMO_SOURCES[prefix](path, env, progress=progress)
-    check_observation_spec(demos, env)
+    if keys is not None:
+        demos = demos.with_keys(keys)
+    check_observation_spec(demos, env, keys)
     return demos

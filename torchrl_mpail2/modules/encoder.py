@@ -130,6 +130,26 @@ class EncoderNet(nn.Module):
             x = ((x - mean) / std).clamp(-self.obs_clip, self.obs_clip)
         return self.coders[key](x)
 
+    def encode_blocks(self, observations: Mapping[str, Tensor]) -> Tensor:
+        """``z [*B, Z]`` of some of the keys (compartmentalised latent only): their blocks, zeros in the blocks of
+        the keys not given. For observations that hold only some keys (video-only demonstrations), read by a reward
+        that selects the given keys' blocks.
+
+        Raises:
+            ValueError: on a fused latent (every latent dimension depends on every key), or an unknown key.
+        """
+        if self.fuse_latent:
+            raise ValueError("encode_blocks needs a compartmentalised latent (fuse_latent=False)")
+        unknown = [key for key in observations if key not in self.latent_slices]
+        if unknown:
+            raise ValueError(f"observation keys {unknown} are not encoder keys {self.keys}")
+        first = next(iter(observations.values()))
+        batch = first.shape[: first.dim() - len(self.shapes[next(iter(observations))])]
+        z = first.new_zeros(*batch, self.latent_dim, dtype=torch.get_default_dtype())
+        for key, x in observations.items():
+            z[..., self.latent_slices[key]] = self.blocks[key](self.encode_key(key, x))
+        return z
+
     def forward(self, *observations: Tensor) -> Tensor:
         """Observations ordered as ``keys`` (each ``[*B, *shape]``) -> ``z [*B, Z]``."""
         feats = [self.encode_key(k, x) for k, x in zip(self.keys, observations)]

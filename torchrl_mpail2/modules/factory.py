@@ -64,34 +64,55 @@ class MPAIL2Modules(nn.Module):
         self.value = QEnsemble(cfg.latent_dim, action_dim, cfg.hidden_dims, cfg.num_q)
         self.policy = MultiStepPolicy(cfg.latent_dim, action_dim, cfg.horizon, cfg.hidden_dims, cfg.log_std_min, cfg.log_std_max)
 
+    def demo_keys_missing(self, demos: Demonstrations) -> list[str]:
+        """The encoder's observation keys that ``demos`` lack, checked against what the reward reads.
+
+        Demonstrations may lack keys (the paper's video-only setting: the table camera alone) only when the latent is
+        compartmentalised and the reward reads only the blocks of keys they hold (``ModelConfig.reward_latent_keys``):
+        the expert's latents are then those blocks, and nothing else reads them.
+
+        Raises:
+            KeyError: demos lack keys the reward would read (the message names the keys, both key sets and the
+                settings that allow partial demonstrations).
+        """
+        missing = [key for key in self.encoder.observation_shapes if key not in demos.observation_keys]
+        read = self.cfg.reward_latent_keys
+        if missing and (self.cfg.fuse_latent or read is None or any(key in missing for key in read)):
+            needed = [key for key in (read or self.encoder.observation_shapes) if key in missing]
+            raise KeyError(
+                f"the reward reads observation keys {needed} that the demonstrations ({demos.env_id}, keys "
+                f"{demos.observation_keys}) do not hold; demonstrations may lack encoder keys only with "
+                f"model.fuse_latent=false and model.reward_latent_keys among their keys")
+        return missing
+
     def normalize_from_demos(self, demos: Demonstrations) -> MPAIL2Modules:
         """Sets the encoder's fixed observation normalisation from demonstration statistics.
 
         Each vector key is normalised by the per-dimension mean and std of the demonstrations'
         observations (:meth:`~torchrl_mpail2.data.Demonstrations.observation_stats`); image keys are
-        left as they are. This is what :func:`make_mpail2_modules` does when given ``demos``.
+        left as they are, and so are vector keys the demonstrations lack (see :meth:`demo_keys_missing`:
+        mean 0, std 1, clipped at ``obs_clip``). This is what :func:`make_mpail2_modules` does when given ``demos``.
 
         Args:
-            demos (Demonstrations): holding every observation key of the encoder, with the same shapes.
+            demos (Demonstrations): holding the encoder's observation keys (all of them, or those the reward reads
+                in the compartmentalised setting), with the same shapes.
 
         Returns:
             MPAIL2Modules: ``self``.
 
         Raises:
-            KeyError: an encoder key is missing from the demonstrations (the message lists both key sets).
+            KeyError: see :meth:`demo_keys_missing`.
             ValueError: a key has another shape in the demonstrations (the message names the key and both shapes).
         """
-        shapes = self.encoder.observation_shapes
-        missing = [key for key in shapes if key not in demos.observation_keys]
-        if missing:
-            raise KeyError(f"encoder observation keys {missing} are not in the demonstrations "
-                           f"({demos.env_id}, keys {demos.observation_keys})")
+        missing = self.demo_keys_missing(demos)
+        shapes = {key: shape for key, shape in self.encoder.observation_shapes.items() if key not in missing}
         for key, shape in shapes.items():
             stored = tuple(demos.observations.get(key).shape[1:])
             if stored != shape:
                 raise ValueError(f"observation {key!r} has shape {list(stored)} in the demonstrations "
                                  f"({demos.env_id}) but {list(shape)} in the encoder")
-        self.encoder.net.set_normalization(demos.observation_stats(self.encoder.net.vector_keys))
+        self.encoder.net.set_normalization(
+            demos.observation_stats([key for key in self.encoder.net.vector_keys if key in shapes]))
         return self
 
     @property
@@ -132,8 +153,8 @@ def make_mpail2_modules(observation_spec, action_spec, cfg: ModelConfig | None =
         >>> torch.equal(modules.encoder.net.obs_mean_observation, mean)
         True
     """
-    if observation_keys is None and demos is not None:
-        observation_keys = demos.observation_keys
+    if observation_keys is None and demos is not None and (cfg is None or cfg.fuse_latent or cfg.reward_latent_keys is None):
+        observation_keys = demos.observation_keys  # otherwise every observation: demos may lack what the reward skips
     shapes = observation_shapes_from_spec(observation_spec, observation_keys)
     modules = MPAIL2Modules(shapes, check_action_spec(action_spec), cfg)
     if demos is not None:

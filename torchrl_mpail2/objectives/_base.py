@@ -98,41 +98,49 @@ class MPAIL2LossBase(LossModule):
         """Latents ``[*B, Z]`` of the observations under ``prefix``."""
         return self._encode([self.require(td, (*prefix, k)) for k in self.encoder_network.in_keys])
 
-    def _encode(self, observations: list[Tensor]) -> Tensor:
-        """Encodes observations ordered as the encoder's keys, each ``[*B, *shape]`` -> ``[*B, Z]``.
+    def _encode(self, observations: list[Tensor], keys: list[str] | None = None) -> Tensor:
+        """Encodes observations ordered as the encoder's keys (or as ``keys``, some of them, with a compartmentalised
+        latent: see :meth:`EncoderNet.encode_blocks`), each ``[*B, *shape]`` -> ``[*B, Z]``.
 
         The batch is flattened and images are handed to the encoder channels-last ``[N, C, H, W]``:
         oneDNN's convolutions run about twice as fast on that layout as on NCHW (same values).
         """
         net = self.encoder_network.net
+        keys = net.keys if keys is None else keys
         first = observations[0]
-        batch = first.shape[: first.dim() - len(net.shapes[net.keys[0]])]
+        batch = first.shape[: first.dim() - len(net.shapes[keys[0]])]
         flat = []
-        for key, x in zip(net.keys, observations):
+        for key, x in zip(keys, observations):
             x = x.reshape(-1, *net.shapes[key])
             flat.append(x.contiguous(memory_format=torch.channels_last) if x.dim() == _IMAGE_DIMS else x)
+        encode = net if list(keys) == net.keys else lambda *xs: net.encode_blocks(dict(zip(keys, xs)))
         if self.bf16_stop_gradient and not torch.is_grad_enabled():
             with torch.autocast(first.device.type, dtype=torch.bfloat16):
-                return net(*flat).float().reshape(*batch, -1)
-        return net(*flat).reshape(*batch, -1)
+                return encode(*flat).float().reshape(*batch, -1)
+        return encode(*flat).reshape(*batch, -1)
 
-    def _pair_latents(self, td: TensorDictBase, prefix: tuple[str, ...]) -> tuple[Tensor, Tensor]:
+    def _pair_latents(self, td: TensorDictBase, prefix: tuple[str, ...], partial: bool = False
+                      ) -> tuple[Tensor, Tensor]:
         """``(z, z')`` of the observations under ``prefix`` and ``prefix + next``.
 
         Inside a contiguous ``[*B, T]`` window ``o'_t == o_{t+1}``: then the ``T + 1`` distinct
         observations are encoded once instead of ``2 T``. Whether that holds is checked on the data
         (one comparison per key), so batches of unrelated transitions get the plain two encodes.
+        With ``partial``, observations may hold only some of the encoder's keys (video-only demonstrations):
+        their latent blocks are encoded, the others left at zero (:meth:`EncoderNet.encode_blocks`).
         """
         keys = self.encoder_network.in_keys
+        if partial:
+            keys = [k for k in keys if td.get((*prefix, k), None) is not None] or keys  # none present: named below
         now = [self.require(td, (*prefix, k)) for k in keys]
         nxt = [self.require(td, (*prefix, *self._prefix(self.tensor_keys.next), k)) for k in keys]
         time = td.batch_dims - 1  # time is the last batch dimension
         steps = td.shape[-1] if td.batch_dims else 0
         if steps >= 2 and all(torch.equal(o.narrow(time, 1, steps - 1), n.narrow(time, 0, steps - 1))
                               for o, n in zip(now, nxt)):
-            z = self._encode([torch.cat([o.narrow(time, 0, 1), n], time) for o, n in zip(now, nxt)])
+            z = self._encode([torch.cat([o.narrow(time, 0, 1), n], time) for o, n in zip(now, nxt)], keys)
             return z.narrow(time, 0, steps), z.narrow(time, 1, steps)
-        return self._encode(now), self._encode(nxt)
+        return self._encode(now, keys), self._encode(nxt, keys)
 
     @torch.no_grad()
     def replay_latents(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
@@ -141,8 +149,11 @@ class MPAIL2LossBase(LossModule):
 
     @torch.no_grad()
     def expert_latents(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
-        """Stop-gradient latents ``(z, z')`` of the expert pairs under the ``expert`` prefix."""
-        return self._pair_latents(td, self._prefix(self.tensor_keys.expert))
+        """Stop-gradient latents ``(z, z')`` of the expert pairs under the ``expert`` prefix. Where the expert pairs
+        hold only some observation keys (video-only demonstrations, compartmentalised latent), only their blocks are
+        encoded; the agent checks when it is built that the reward reads nothing else
+        (:meth:`~torchrl_mpail2.modules.MPAIL2Modules.demo_keys_missing`)."""
+        return self._pair_latents(td, self._prefix(self.tensor_keys.expert), partial=not self.encoder_network.net.fuse_latent)
 
     @staticmethod
     def checked_start_fraction(fraction: float) -> float:

@@ -46,6 +46,11 @@ class TrainConfig:
     ``{"human_like": true}`` (per-episode speed, approach path, drift and pauses) or ``{"max_lift_speed": 0.005}``."""
     demo_steps_after_success: int | None = None
     """End each recorded demonstration this many steps after its first success (None: whole episodes)."""
+    demo_keys: tuple[str, ...] | None = None
+    """Observation keys the demonstrations keep, the others dropped after loading or recording (None: all). The
+    paper's video-only demonstrations keep the table camera's frames alone (``["external_image"]``): the learner
+    still observes every key, and the reward must read only kept keys' latent blocks (``model.fuse_latent=false``,
+    ``model.reward_latent_keys``)."""
     total_episodes: int = 200
     """Training episodes (warm-up included)."""
     warmup_episodes: int = 2
@@ -133,6 +138,11 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if self.demo_keys is not None:
+            if isinstance(self.demo_keys, str) or not self.demo_keys or not all(isinstance(k, str) for k in self.demo_keys):
+                raise ConfigError(f"TrainConfig.demo_keys must be a non-empty list of observation keys or None, "
+                                  f"got {self.demo_keys!r}")
+            self.demo_keys = tuple(self.demo_keys)
         if self.obs not in OBS_MODES:
             raise ConfigError(f"unknown TrainConfig.obs {self.obs!r}; choose from {OBS_MODES}")
         if obs_modes_of(self.env) and self.obs not in obs_modes_of(self.env):  # () for an env of a custom env_fn

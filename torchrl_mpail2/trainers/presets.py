@@ -95,6 +95,17 @@ def _pixels_cpu(state: ExperimentConfig) -> ExperimentConfig:
     return cfg
 
 
+def _push_video_only_cpu() -> ExperimentConfig:
+    """The paper's video-only demonstrations (Appendix "Video-only Demonstration Setup") on ``push_pixels``: the
+    learner observes both cameras and proprioception, the demonstrations keep only the table camera's frames, the
+    latent is compartmentalised (one block per key, 64 wide each) and the reward reads only the table camera's block;
+    dynamics, value and policy read the whole latent."""
+    cfg = _pixels_cpu(_push_state_cpu())
+    cfg.train.demo_keys = ("external_image",)
+    cfg.model.latent_dim, cfg.model.fuse_latent, cfg.model.reward_latent_keys = 192, False, ("external_image",)
+    return cfg
+
+
 def _gym_cpu(env: str) -> ExperimentConfig:
     """gymnasium MuJoCo tasks terminate: the value target masks terminal transitions."""
     cfg = _robosuite_state_cpu(env)
@@ -111,6 +122,7 @@ PRESETS = {
     "lift_pixels": lambda: _pixels_cpu(_lift_state_cpu()),
     "push_state": _push_state_cpu,
     "push_pixels": lambda: _pixels_cpu(_push_state_cpu()),
+    "push_video_only": _push_video_only_cpu,
     "hopper": lambda: _gym_cpu("gym/Hopper-v5"),
 }
 

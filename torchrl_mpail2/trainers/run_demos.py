@@ -28,13 +28,14 @@ def default_demo_dir(cfg: ExperimentConfig) -> Path:
 def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) -> Demonstrations:
     """``train.demos`` if set (a folder or ``<format>:<path>``), else the cached scripted demos, recorded on first
     use with ``env_fn(seed=...)`` and the env's scripted expert. Two runs that record the same cache at once (the
-    same env, options, count and seed, so the same episodes) both go on: the later one loads the earlier one's."""
+    same env, options, count and seed, so the same episodes) both go on: the later one loads the earlier one's.
+    With ``train.demo_keys`` the demonstrations keep only those observation keys (the cache keeps every key)."""
     t = cfg.train
     if t.demos is not None:
-        return load_demo_source(t.demos, env, progress=t.progress)
+        return load_demo_source(t.demos, env, progress=t.progress, keys=t.demo_keys)
     path = default_demo_dir(cfg)
     if path.exists():
-        return load_demos(path, env)
+        return load_demos(path, env, keys=t.demo_keys)
     seed = t.seed + DEMO_SEED_OFFSET
     demo_env = env_fn(seed=seed)
     # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
@@ -48,5 +49,5 @@ def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) 
         save_demos(demos, path)
     except FileExistsError:
         log.info("%s was written by another run meanwhile; using it", path)
-        return load_demos(path, env)
-    return demos
+        return load_demos(path, env, keys=t.demo_keys)
+    return demos if t.demo_keys is None else demos.with_keys(t.demo_keys)

@@ -30,6 +30,7 @@ from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episod
                                                 evaluation_seeds, summarize_outcomes)
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.plots import plot_run
+from torchrl_mpail2.envs.keys import observation_keys_of
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
@@ -92,6 +93,8 @@ class MPAIL2Trainer:
         if agent is None:
             agent = MPAIL2Agent(self.env.observation_spec, self.env.action_spec, cfg.model, cfg.loss, cfg.planner,
                                 ablation=t.ablation, update_precision=t.update_precision, demos=self.demos,
+                                # with partial demos (train.demo_keys) the learner still observes every key
+                                observation_keys=None if t.demo_keys is None else observation_keys_of(self.env),
                                 device=t.device)
         self.agent = agent
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
