@@ -152,6 +152,10 @@ class ModelConfig:
     """Output width of each per-key coder before fusion (Fig. 14: 512)."""
     cnn_channels: int = 32
     """Channels of the four 3x3 convolutions of the image coder."""
+    image_norm: str = "centred"
+    """How camera pixels enter the CNN (``modules.encoder.IMAGE_NORMS``): ``centred`` (x / 255 - 0.5, as the
+    authors' code) or ``demos`` (each pixel and channel standardised by the demonstrations' mean and std, the std
+    floored at ``modules.encoder.PIXEL_STD_FLOOR``, clipped at ``obs_clip``, as vector keys are)."""
     fuse_latent: bool = True
     """Fuse the coders' outputs with a latent MLP (True) or keep one latent block per key (compartmentalised)."""
     reward_latent_keys: tuple[str, ...] | None = None
@@ -186,6 +190,8 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.num_q must be >= 2 (two heads are drawn per target), got {self.num_q}")
         if self.log_std_min >= self.log_std_max:
             raise ConfigError("ModelConfig.log_std_min must be below log_std_max")
+        if self.image_norm not in ("centred", "demos"):
+            raise ConfigError(f"unknown ModelConfig.image_norm {self.image_norm!r}; choose from ('centred', 'demos')")
         if self.reward_latent_keys is not None:
             if self.fuse_latent:
                 raise ConfigError("reward_latent_keys needs fuse_latent=False (a fused latent has no per-key blocks)")

@@ -89,9 +89,9 @@ class MPAIL2Modules(nn.Module):
         """Sets the encoder's fixed observation normalisation from demonstration statistics.
 
         Each vector key is normalised by the per-dimension mean and std of the demonstrations'
-        observations (:meth:`~torchrl_mpail2.data.Demonstrations.observation_stats`); image keys are
-        left as they are, and so are vector keys the demonstrations lack (see :meth:`demo_keys_missing`:
-        mean 0, std 1, clipped at ``obs_clip``). This is what :func:`make_mpail2_modules` does when given ``demos``.
+        observations (:meth:`~torchrl_mpail2.data.Demonstrations.observation_stats`); image keys per pixel and
+        channel likewise with ``image_norm="demos"`` (else centred). Keys the demonstrations lack are left as they
+        are (see :meth:`demo_keys_missing`). This is what :func:`make_mpail2_modules` does when given ``demos``.
 
         Args:
             demos (Demonstrations): holding the encoder's observation keys (all of them, or those the reward reads
@@ -111,8 +111,11 @@ class MPAIL2Modules(nn.Module):
             if stored != shape:
                 raise ValueError(f"observation {key!r} has shape {list(stored)} in the demonstrations "
                                  f"({demos.env_id}) but {list(shape)} in the encoder")
-        self.encoder.net.set_normalization(
-            demos.observation_stats([key for key in self.encoder.net.vector_keys if key in shapes]))
+        net = self.encoder.net
+        net.set_normalization(demos.observation_stats([key for key in net.vector_keys if key in shapes]))
+        if self.cfg.image_norm == "demos":
+            images = {key: demos.observations.get(key).float() / 255.0 for key in shapes if key not in net.vector_keys}
+            net.set_normalization({key: (x.mean(0), x.std(0, unbiased=False)) for key, x in images.items()})
         return self
 
     @property
