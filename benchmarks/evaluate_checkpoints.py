@@ -101,10 +101,11 @@ def _summary(header: dict, rows: list[dict]) -> dict:
 
 def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None = None,
                  acting: str = "deterministic", from_episode: int = 0, held_out: int = 0,
-                 out: Path | None = None, reuse_run_evals: bool = True) -> dict:
+                 out: Path | None = None, reuse_run_evals: bool = True, only_evaluated: bool = False) -> dict:
     """Scores every numbered checkpoint from ``from_episode`` on (see the module's docstring); with ``out``, writes
     the result there after each checkpoint and reuses the rows of an interrupted evaluation found there;
-    ``reuse_run_evals=False`` plays the checkpoints the run evaluated itself again too."""
+    ``reuse_run_evals=False`` plays the checkpoints the run evaluated itself again too; ``only_evaluated`` keeps only
+    those (nothing is replayed on the fixed episodes: the Best is the run's own, and only ``held_out`` plays)."""
     checkpoints = [(e, path) for e, path in numbered_checkpoints(run_dir) if e >= from_episode]
     if not checkpoints:
         raise SystemExit(f"no numbered checkpoints from episode {from_episode} under {run_dir / 'checkpoints'}")
@@ -114,7 +115,7 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
     episodes = episodes or train["eval_episodes"]
     seeds = evaluation_seeds(run_eval_seed(train), episodes)
     header = {"run": run_dir.name, "acting": acting, "episodes_per_checkpoint": episodes, "first_eval_seed": seeds[0],
-              "from_episode": from_episode}
+              "from_episode": from_episode, **({"only_evaluated": True} if only_evaluated else {})}
     earlier = _earlier_result(out, header) if out is not None else {}
     known = {row["episode"]: row for row in earlier.get("checkpoints", [])}
     # held-out scores of earlier calls, by (checkpoint, episodes): played once, however often this is called, and
@@ -123,6 +124,11 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
               for h in [*earlier.get("held_out_scores", []), earlier.get("held_out"), earlier.get("held_out_last")] if h}
     # the run's own evaluations count only if they acted as asked now (``train.eval_acting``)
     own = _runs_own_rows(run_dir, episodes) if reuse_run_evals and train.get("eval_acting", "deterministic") == acting else {}
+    if only_evaluated:
+        checkpoints = [(e, path) for e, path in checkpoints if e in own]
+        if not checkpoints:
+            raise SystemExit(f"{run_dir}: no checkpoint from episode {from_episode} that the run evaluated itself on "
+                             f"{episodes} episodes acting {acting!r}")
     rows = []
     try:
         for episode, path in tqdm(checkpoints, desc="checkpoints"):
@@ -181,6 +187,8 @@ def main() -> None:
                         "begins to exhibit successes')")
     p.add_argument("--held-out", type=int, default=0, metavar="N",
                    help="score the Best checkpoint once more on N episodes it was not chosen on")
+    p.add_argument("--only-evaluated", action="store_true",
+                   help="only the checkpoints the run evaluated itself (nothing replayed on the fixed episodes)")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--name", help="also write docs/results/diary/<name>_checkpoints.json")
     p.add_argument("--acting", choices=sorted(ACTING), default="deterministic",
@@ -195,7 +203,7 @@ def main() -> None:
     suffix = "" if args.acting == "deterministic" else f"_{args.acting}"
     out = args.run_dir / f"checkpoint_evals{suffix}.json"
     result = evaluate_run(args.run_dir, args.episodes, args.threads, args.acting, args.from_episode, args.held_out,
-                          out=out)
+                          out=out, only_evaluated=args.only_evaluated)
     if args.name:
         (RESULTS / f"{args.name}_checkpoints{suffix}.json").write_text(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "checkpoints"}, indent=2))

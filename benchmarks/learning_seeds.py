@@ -16,6 +16,11 @@ Lift), ``benchmarks/evaluate_checkpoints.py RUN --from-episode E --held-out 50``
 50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
 ``best_all_checkpoints_success_any_step`` and ``best_checkpoint_held_out_success_any_step`` beside the evaluations'.
 
+The headline of a configuration is its final checkpoint on episodes that chose nothing: once the seeds finish,
+each seed's last and Best evaluated checkpoints play ``--held-out`` (default 50, the paper's trials) other episodes
+(``evaluate_checkpoints.py --only-evaluated``), and the summary reports ``held_out_last`` and ``held_out_best``:
+the mean over seeds, its 95% bootstrap interval over seeds and episodes and, from 3 seeds, the interquartile mean.
+
 Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
 ``curve`` with the mean and std over seeds, ``best_success_any_step``, ``last_success_any_step``,
 ``episodes_to_50`` / ``episodes_to_80``, ``episodes``, ``wall_time_s``, ``machine``, ``commit``, per-seed detail)
@@ -40,6 +45,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _child_env import child_env  # noqa: E402
+from _intervals import bootstrap_ci, iqm  # noqa: E402
 from _results import git_commit  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)
@@ -81,6 +87,23 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
             "train.progress=false", f"train.total_episodes={args.episodes}", f"train.max_wall_s={args.budget_min * 60}",
             every, f"train.checkpoint_every={getattr(args, 'checkpoint_every', None) or args.eval_every}",
             f"train.eval_episodes={args.eval_episodes}", *overrides]
+
+
+def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
+    """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
+    (``benchmarks/evaluate_checkpoints.py --only-evaluated --held-out N``, one thread; a score already in the run's
+    ``checkpoint_evals.json`` is reused)."""
+    if not args.held_out:
+        return
+    for seed, run_dir in seeds:
+        if not (run_dir / "summary.json").exists() or not (run_dir / "checkpoints").exists():
+            continue
+        cmd = [sys.executable, str(ROOT / "benchmarks" / "evaluate_checkpoints.py"), str(run_dir), "--only-evaluated",
+               "--held-out", str(args.held_out), "--threads", "1"]
+        with open(run_dir.parent / f"seed{seed}.log", "a") as log:
+            code = subprocess.run(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log, stderr=subprocess.STDOUT).returncode
+        if code != 0:
+            print(f"seed {seed}: held-out scoring exited with {code}\n{log_tail(run_dir.parent / f'seed{seed}.log')}")
 
 
 def log_tail(path: Path, lines: int = 15) -> str:
@@ -221,10 +244,12 @@ def all_checkpoints(run_dir: Path, train: dict) -> dict | None:
     rows = evals["checkpoints"]
 
     def brief(held):
-        return None if held is None else {k: held[k] for k in ("checkpoint", "first_seed", "episodes",
-                                                              "success_rate_any_step", "success_rate")}
+        return None if held is None else {k: held.get(k) for k in ("checkpoint", "first_seed", "episodes",
+                                                                  "success_rate_any_step", "success_rate",
+                                                                  "success_any_step_per_episode")}
 
     return {"checkpoints": len(rows), "from_episode": evals.get("from_episode"), "episodes": [r["episode"] for r in rows],
+            "only_evaluated": bool(evals.get("only_evaluated")),
             "best_success_any_step": evals["best_success_rate_any_step"], "best_episode": evals.get("best_episode"),
             "held_out": brief(evals.get("held_out")), "held_out_last": brief(evals.get("held_out_last"))}
 
@@ -233,6 +258,19 @@ def _mean_over_seeds(per_seed: dict[int, dict], pick) -> float | None:
     """The mean of ``pick(seed's all_checkpoints)`` when every seed has one, else None."""
     values = [pick(p["all_checkpoints"]) if p.get("all_checkpoints") else None for p in per_seed.values()]
     return None if any(v is None for v in values) else statistics.fmean(values)
+
+
+def held_out_headline(per_seed: dict[int, dict], which: str) -> dict | None:
+    """The mean over seeds of ``which`` (``held_out_last``: the final checkpoint, ``held_out``: the Best) on the
+    held-out episodes, its 95% bootstrap interval over seeds and episodes, and the interquartile mean over seeds
+    (3 or more); None unless every seed has the score with its per-episode outcomes."""
+    scores = [(p.get("all_checkpoints") or {}).get(which) for p in per_seed.values()]
+    if not scores or any(s is None or not s.get("success_any_step_per_episode") for s in scores):
+        return None
+    outcomes = [s["success_any_step_per_episode"] for s in scores]
+    per_seed_mean = [statistics.fmean(o) for o in outcomes]
+    return {"mean": statistics.fmean(per_seed_mean), "ci95": bootstrap_ci(outcomes), "iqm": iqm(per_seed_mean),
+            "per_seed": per_seed_mean, "episodes": [len(o) for o in outcomes], "checkpoints": [s["checkpoint"] for s in scores]}
 
 
 def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, extra: dict | None = None) -> dict:
@@ -271,6 +309,8 @@ def _write_result(name: str, config: dict, per_seed: dict[int, dict], commit, ex
         "best_all_checkpoints_success_any_step": _mean_over_seeds(per_seed, lambda a: a["best_success_any_step"]),
         "best_checkpoint_held_out_success_any_step": _mean_over_seeds(
             per_seed, lambda a: a["held_out"]["success_rate_any_step"] if a["held_out"] else None),
+        "held_out_last": held_out_headline(per_seed, "held_out_last"),
+        "held_out_best": held_out_headline(per_seed, "held_out"),
         "episodes_to_50": first_reaching(0.5), "episodes_to_80": first_reaching(0.8),
         "episodes": [per_seed[s]["episodes"] for s in sorted(per_seed)],
         "wall_time_s": [per_seed[s]["wall_time_s"] for s in sorted(per_seed)],
@@ -394,6 +434,9 @@ def main() -> None:
                    help="save a checkpoint every this many episodes (default: at each evaluation); the paper's Best "
                         "picks among checkpoints every 10 (benchmarks/evaluate_checkpoints.py scores them)")
     p.add_argument("--parallel", type=int, default=2)
+    p.add_argument("--held-out", type=int, default=50, metavar="N",
+                   help="score each finished seed's Best and last evaluated checkpoints on N held-out episodes (the "
+                        "paper's 50 trials; 0: skip); with --summarize, score seeds that lack it first")
     p.add_argument("--runs-root", type=Path, default=ROOT / "runs" / "learning")
     p.add_argument("--summarize", action="store_true", help="only rewrite the results from the run folders")
     p.add_argument("--compare", nargs="+", metavar="NAME", help="plot the curves of these results together")
@@ -412,10 +455,14 @@ def main() -> None:
         print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
         return
     if args.summarize:  # only the seeds asked for, if any
+        done = sorted((args.runs_root / args.name).glob("seed*/summary.json"))
+        score_held_out(args, [(int(p.parent.name.removeprefix("seed")), p.parent) for p in done
+                              if args.seeds is None or int(p.parent.name.removeprefix("seed")) in args.seeds])
         result = summarize(args.name, args.runs_root, args.seeds)
     else:  # every seed of the name, those trained now and any trained before
         args.seeds = args.seeds or [0, 1]
         run_seeds(args, overrides)
+        score_held_out(args, [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds])
         result = summarize(args.name, args.runs_root)
     print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
 

@@ -169,6 +169,11 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
     assert row["success_rate"] == logged[-1]["success_rate"]
     with pytest.raises(SystemExit, match="no numbered checkpoints from episode 4"):
         bench.evaluate_run(run_dir, from_episode=4)
+    # only the checkpoints the run evaluated itself: nothing is played again on the fixed episodes
+    only = bench.evaluate_run(run_dir, only_evaluated=True)
+    assert [(r["episode"], r["source"]) for r in only["checkpoints"]] == [(3, "run")] and only["only_evaluated"]
+    with pytest.raises(SystemExit, match="no checkpoint from episode 0 that the run evaluated itself on 7 episodes"):
+        bench.evaluate_run(run_dir, episodes=7, only_evaluated=True)
 
 
 def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scores_the_best_held_out(

@@ -233,3 +233,47 @@ def test_checkpoints_are_saved_at_each_evaluation_unless_asked_otherwise(bench, 
     assert "train.checkpoint_every=10" in bench.seed_command(run, 0, args, [])
     (run / "checkpoints" / "last").mkdir(parents=True)  # resumed: the spacing may change, nothing else
     assert bench.seed_command(run, 0, args, [])[-2:] == ["train.total_episodes=300", "train.checkpoint_every=10"]
+
+
+def _held_out_last(run, outcomes):
+    """Adds a ``held_out_last`` score with per-episode outcomes to the run's ``checkpoint_evals.json``."""
+    path = run / "checkpoint_evals.json"
+    evals = json.loads(path.read_text())
+    evals["held_out_last"] = {"checkpoint": "episode_000100", "first_seed": 2_100_000, "episodes": len(outcomes),
+                              "success_rate_any_step": sum(outcomes) / len(outcomes), "success_rate": 0.0,
+                              "success_any_step_per_episode": outcomes}
+    path.write_text(json.dumps(evals))
+
+
+def test_the_held_out_headline_has_a_bootstrap_interval_and_the_iqm_from_three_seeds(bench, tmp_path):
+    outcomes = {0: [1.0] * 40 + [0.0] * 10, 1: [1.0] * 30 + [0.0] * 20, 2: [1.0] * 45 + [0.0] * 5}
+    for seed, seed_outcomes in outcomes.items():
+        _fake_seed(tmp_path, seed, [(50, 0.4, 0.2), (100, 0.6, 0.6)])
+        _checkpoint_evals(tmp_path / "demo" / f"seed{seed}", [(50, 0.4), (100, 0.6)])
+        if seed < 2:
+            _held_out_last(tmp_path / "demo" / f"seed{seed}", seed_outcomes)
+    assert bench.summarize("demo", tmp_path)["held_out_last"] is None  # seed 2 has no held-out score yet
+    _held_out_last(tmp_path / "demo" / "seed2", outcomes[2])
+    headline = bench.summarize("demo", tmp_path)["held_out_last"]
+    assert headline["per_seed"] == pytest.approx([0.8, 0.6, 0.9]) and headline["mean"] == pytest.approx(0.7667, abs=1e-3)
+    low, high = headline["ci95"]
+    assert low < headline["mean"] < high and 0.5 < low and high < 0.95  # seeds and episodes both vary
+    assert headline["iqm"] == pytest.approx(headline["mean"])  # 3 seeds: a quarter of 3 rounds down to no cut
+    assert headline["episodes"] == [50, 50, 50]
+
+
+def test_bootstrap_interval_and_iqm_by_hand():
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _intervals import bootstrap_ci, iqm
+
+    assert bootstrap_ci([[1.0] * 20]) == (1.0, 1.0)  # nothing varies
+    low, high = bootstrap_ci([[1.0] * 25 + [0.0] * 25])  # one seed: a binomial mean of 0.5 over 50 episodes
+    assert 0.34 < low < 0.40 and 0.60 < high < 0.66  # the normal approximation gives 0.5 -+ 0.139
+    lo2, hi2 = bootstrap_ci([[1.0] * 10, [0.0] * 10])
+    assert lo2 == 0.0 and hi2 == 1.0  # two seeds that disagree completely: resampling seeds spans everything
+    assert iqm([0.0, 1.0, 2.0, 3.0]) == pytest.approx(1.5) and iqm([5.0, 0.0, 100.0, 1.0, 2.0]) == pytest.approx(8 / 3)
+    assert iqm([0.3, 0.9]) is None
+    with pytest.raises(ValueError, match="at least one seed"):
+        bootstrap_ci([[1.0], []])
