@@ -52,3 +52,15 @@ def test_lift_uses_the_raw_critic_with_penalty_10_and_push_keeps_the_reward_it_w
     differing = {k for k in lift["loss"] if lift["loss"][k] != push["loss"][k]}
     assert differing == {"reward_scale_momentum", "gp_coef"}
     assert {k for k in lift["train"] if lift["train"][k] != push["train"][k]} == {"env"}
+
+
+def test_tuple_fields_take_commas_or_a_json_list_and_a_torn_list_is_named():
+    from torchrl_mpail2.trainers import apply_overrides
+
+    for text in ("external_image,wrist_image", '["external_image", "wrist_image"]'):
+        cfg = apply_overrides(preset("push_pixels"), [f"train.demo_keys={text}", "model.hidden_dims=[128, 64]"])
+        assert cfg.train.demo_keys == ("external_image", "wrist_image") and cfg.model.hidden_dims == (128, 64)
+    with pytest.raises(ConfigError, match=r"model.hidden_dims='\[12': expected .* or a JSON list"):
+        apply_overrides(preset("push_pixels"), ["model.hidden_dims=[12"])
+    with pytest.raises(ConfigError, match="TrainConfig.demo_keys must be a non-empty list"):
+        apply_overrides(preset("push_pixels"), ["train.demo_keys=[]"])

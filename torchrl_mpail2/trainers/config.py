@@ -226,6 +226,12 @@ def _parse_value(text: str, section_cls: type, section: str, name: str):
     if kind.optional and text.lower() in ("null", "none"):
         return None
     items = [t.strip() for t in text.split(",") if t.strip()] if kind.is_tuple else [text]
+    if kind.is_tuple and text.strip().startswith("["):  # a JSON list, as the dict fields take JSON
+        try:
+            items = [str(item) for item in json.loads(text)]
+        except json.JSONDecodeError:
+            raise ConfigError(f"{section}.{name}={text!r}: expected {kind.describe()} (comma-separated or a JSON "
+                              "list)") from None
     parsed = []
     for item in items:
         try:
