@@ -21,9 +21,40 @@ def test_env_and_obs_flags_are_overrides_of_their_fields_and_nothing_else(capsys
     assert printed_config(capsys, ["--obs", "pixels", "train.obs=state"])["train"]["obs"] == "state"
 
 
-def test_a_bad_obs_flag_is_refused_by_name():
-    with pytest.raises(ConfigError, match="unknown TrainConfig.obs 'thermal'"):
+def test_a_bad_obs_flag_is_refused_by_name(capsys):
+    with pytest.raises(SystemExit) as exit_info:
         main(["--obs", "thermal", "--print-config"])
+    assert exit_info.value.code == 2
+    assert "unknown TrainConfig.obs 'thermal'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["train.batch_size=abc"], "error: train.batch_size='abc': expected an integer"),
+    (["planner.temp=1"], "error: unknown field planner.temp"),
+    (["--resume", "no_such_run"], "error: --resume no_such_run: cannot resume no_such_run"),
+])
+def test_a_bad_field_value_or_run_folder_is_one_line_and_status_2(capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert "Traceback" not in err
+
+
+def test_help_config_lists_every_field_with_its_type_value_and_docstring(capsys):
+    from torchrl_mpail2.config import field_docs
+    from torchrl_mpail2.trainers.config import TrainConfig
+
+    assert main(["--preset", "push_video_only", "--help-config"]) is None
+    out = capsys.readouterr().out
+    assert "  train.demo_keys (comma-separated values, each a string or null) = [\"external_image\"]" in out
+    assert "  model.reward_latent_keys (comma-separated values, each a string or null)" in out
+    assert "Observation keys the demonstrations keep" in out  # the field's docstring, wrapped
+    docs = field_docs(TrainConfig)
+    assert all(docs.values()), [name for name, doc in docs.items() if not doc]  # every field says what it does
+    assert out.count("  train.") == len(docs)
+    main(["--help-config", "planner"])
+    assert "planner.num_candidates" in (section := capsys.readouterr().out) and "train.env" not in section
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))

@@ -6,7 +6,10 @@ factories in :mod:`torchrl_mpail2.modules.factory` compute them from the specs.
 """
 from __future__ import annotations
 
+import ast
+import inspect
 import math
+import textwrap
 import typing
 from dataclasses import dataclass, fields
 from typing import ClassVar
@@ -70,6 +73,19 @@ class FieldKind:
         if self.is_tuple:
             name = f"comma-separated values, each {name}"
         return f"{name} or null" if self.optional else name
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The one-line-or-more docstrings written under the fields of the config dataclass ``cls`` (the string literal
+    that follows each annotated field in its source), by field name; a field without one maps to ``""``."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs = {}
+    for node, after in zip(body, [*body[1:], None]):
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            text = after.value.value if (isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                                         and isinstance(after.value.value, str)) else ""
+            docs[node.target.id] = inspect.cleandoc(text)
+    return {f.name: docs.get(f.name, "") for f in fields(cls)}
 
 
 def field_kind(cls: type, name: str) -> FieldKind:
@@ -156,6 +172,9 @@ class ModelConfig:
     """How camera pixels enter the CNN (``modules.encoder.IMAGE_NORMS``): ``centred`` (x / 255 - 0.5, as the
     authors' code) or ``demos`` (each pixel and channel standardised by the demonstrations' mean and std, the std
     floored at ``modules.encoder.PIXEL_STD_FLOOR``, clipped at ``obs_clip``, as vector keys are)."""
+    image_shift: int = 0
+    """Pad in pixels of the random-shift augmentation (DrQ, TD-MPC2) of camera frames in the losses: each replayed
+    and expert frame is edge-padded and cropped back at a random offset; never when acting. 0: none (the paper)."""
     fuse_latent: bool = True
     """Fuse the coders' outputs with a latent MLP (True) or keep one latent block per key (compartmentalised)."""
     reward_latent_keys: tuple[str, ...] | None = None
@@ -177,7 +196,7 @@ class ModelConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "latent_dim": POSITIVE, "hidden_dims": POSITIVE, "vector_coder_hidden": POSITIVE, "coder_dim": POSITIVE,
-        "cnn_channels": POSITIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
+        "cnn_channels": POSITIVE, "image_shift": NON_NEGATIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
         "log_std_min": FINITE, "log_std_max": FINITE,
     }
 
