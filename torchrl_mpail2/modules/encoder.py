@@ -28,6 +28,29 @@ _CNN_STRIDES = (2, 2, 2, 1)
 _CNN_KERNEL = 3
 
 
+def random_shift(images: Tensor, pad: int) -> Tensor:
+    """Random-shift augmentation (DrQ, TD-MPC2's ``ShiftAug``): each image of ``[N, C, H, W]`` padded by ``pad``
+    pixels replicating its edges, then cropped back to ``H x W`` at a random integer offset of its own (up to
+    ``pad`` pixels either way, per axis). Any dtype; ``pad=0`` returns ``images`` unchanged.
+
+    Examples:
+        >>> x = torch.arange(16.0).view(1, 1, 4, 4)
+        >>> torch.equal(random_shift(x, 0), x)
+        True
+        >>> random_shift(x, 1).shape
+        torch.Size([1, 1, 4, 4])
+    """
+    if pad == 0:
+        return images
+    n, _, h, w = images.shape
+    shift = torch.randint(-pad, pad + 1, (2, n, 1), device=images.device)
+    # indices clamped into the frame are the edge-replicated padding, without building the padded copy
+    rows = (torch.arange(h, device=images.device) + shift[0]).clamp(0, h - 1)  # [N, H]
+    cols = (torch.arange(w, device=images.device) + shift[1]).clamp(0, w - 1)  # [N, W]
+    index = torch.arange(n, device=images.device).view(n, 1, 1)
+    return images.permute(0, 2, 3, 1)[index, rows.unsqueeze(-1), cols.unsqueeze(-2)].permute(0, 3, 1, 2)
+
+
 def is_image_shape(shape: Sequence[int]) -> bool:
     """True for channels-first RGB images ``[3, H, W]``."""
     return len(shape) == 3 and shape[0] == IMAGE_CHANNELS
@@ -64,6 +87,22 @@ class ImageCoder(nn.Module):
         with torch.no_grad():
             flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # 800 for 64x64 inputs
         self.out = nn.Sequential(nn.Linear(flat, out_dim), nn.SiLU())
+        import os  # PMX_EXPERIMENT (temporary)
+        mode = os.environ.get("PMX_INIT", "")
+        if mode:
+            for m in [*self.convs, self.out[0]]:
+                if isinstance(m, (nn.Conv2d, nn.Linear)):
+                    if mode == "kaiming":
+                        nn.init.kaiming_normal_(m.weight, nonlinearity="relu")
+                    elif mode == "orth":
+                        w = torch.empty(m.weight.shape)
+                        nn.init.orthogonal_(w, nn.init.calculate_gain("relu"))
+                        m.weight.data.copy_(w)
+                    elif mode == "zerobias":
+                        pass
+                    else:
+                        raise ValueError(mode)
+                    nn.init.zeros_(m.bias)
 
     def forward(self, image: Tensor) -> Tensor:
         batch = image.shape[:-3]
@@ -86,12 +125,15 @@ class EncoderNet(nn.Module):
         cnn_channels (int): channels of the image coder.
         fuse_latent (bool): fused (True) or compartmentalised (False) latent.
         obs_clip (float): clip of normalised vector observations.
+        image_shift (int): pad of the random-shift augmentation (:func:`random_shift`) that the losses apply to
+            images before encoding them (``MPAIL2LossBase._encode``); never when acting. 0: none.
     """
 
     def __init__(self, observation_shapes: Mapping[str, Sequence[int]], latent_dim: int, hidden_dims: Sequence[int],
                  vector_coder_hidden: int = 256, coder_dim: int = 512, cnn_channels: int = 32,
-                 fuse_latent: bool = True, obs_clip: float = 5.0):
+                 fuse_latent: bool = True, obs_clip: float = 5.0, image_shift: int = 0):
         super().__init__()
+        self.image_shift = image_shift
         if not observation_shapes:
             raise ValueError("the encoder needs at least one observation key")
         self.keys = list(observation_shapes)
