@@ -38,13 +38,11 @@ import torch
 from tqdm import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.trainers.evaluation import (ACTING, evaluate_episodes, evaluation_env, evaluation_seeds,
-                                                run_eval_seed, summarize_outcomes)
+from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, evaluate_episodes, evaluation_env,
+                                                evaluation_seeds, run_eval_seed, summarize_outcomes)
 from torchrl_mpail2.trainers.plots import EVAL_FILE, read_jsonl
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
-#: First seed of the held-out episodes is ``train.eval_seed`` plus this: clear of any fixed evaluation set.
-HELD_OUT_SEED_OFFSET = 100_000
 
 
 def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:

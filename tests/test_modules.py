@@ -242,3 +242,13 @@ def test_image_coder_channels_last_computes_the_plain_cnn():
     want_grads = torch.autograd.grad(want.square().sum(), list(coder.parameters()))
     for g, w in zip(grads, want_grads):
         torch.testing.assert_close(g, w, rtol=1e-4, atol=1e-6)
+
+
+def test_image_coder_loads_a_state_dict_from_before_the_pixel_statistics_as_centred():
+    from torchrl_mpail2.modules.encoder import ImageCoder
+
+    coder = ImageCoder((3, 64, 64), 8, 16)
+    coder.pixel_mean.fill_(0.2)  # as if normalised from demonstrations
+    old = {k: v for k, v in coder.state_dict().items() if not k.startswith("pixel_")}
+    coder.load_state_dict(old)  # strict: the missing buffers are filled in, as the old code centred pixels
+    assert torch.equal(coder.pixel_mean, torch.full((3, 64, 64), 0.5)) and torch.equal(coder.pixel_std, torch.ones(3, 64, 64))

@@ -104,6 +104,12 @@ class ImageCoder(nn.Module):
                         raise ValueError(mode)
                     nn.init.zeros_(m.bias)
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints written before the pixel statistics were buffers centred pixels: load them as they ran
+        for name, fill in (("pixel_mean", 0.5), ("pixel_std", 1.0)):
+            state_dict.setdefault(prefix + name, torch.full_like(getattr(self, name), fill))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def forward(self, image: Tensor) -> Tensor:
         batch = image.shape[:-3]
         x = image.reshape(-1, *image.shape[-3:]).contiguous(memory_format=torch.channels_last)

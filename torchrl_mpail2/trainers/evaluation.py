@@ -44,6 +44,10 @@ def evaluation_seeds(first_seed: int, episodes: int) -> list[int]:
     return [first_seed + i for i in range(episodes)]
 
 
+#: First seed of the held-out episodes is ``train.eval_seed`` plus this: clear of any fixed evaluation set.
+HELD_OUT_SEED_OFFSET = 100_000
+
+
 def run_eval_seed(train: Mapping) -> int:
     """A saved run's ``train.eval_seed`` (:data:`DEFAULT_EVAL_SEED` for runs saved before it existed)."""
     return train.get("eval_seed", DEFAULT_EVAL_SEED)

@@ -1,0 +1,126 @@
+r"""What the latent :math:`z = e_\omega(o)` of a robosuite checkpoint knows about the scene: how well a small probe
+reads the cube's and the hand's positions off it, and how much the latent varies at all.
+
+    python -m torchrl_mpail2.diagnostics latent_content CKPT [--resets 200] [--episodes 3] [--out FILE]
+
+An encoder trained only by the latent prediction loss (Eq. 2) can collapse: a latent that hardly changes predicts
+itself well. From camera frames the hand's position is in the proprioception as well, but the cube's only in the
+pictures, so a camera run whose latent cannot tell where the cube is cannot plan a push. Two sets of states:
+``--resets`` initial states (evaluation seeds from the held-out range: the cube is placed anew each time, the arm
+starts about the same), and the states of ``--episodes`` episodes of the run's evaluation set played by the
+checkpoint's agent (the plan's mean). Each observation is encoded and paired with the simulator's cube and hand
+positions; a :class:`~torchrl_mpail2.diagnostics.latent_probe.LatentProbe` is fitted to each (from the latent
+standardised per dimension) on 80% of the pairs of a set and scored on the rest (``held_out_r2``: 1 reads it exactly, 0 no better than the mean). Also reported per set:
+the latent's spread (the mean over dimensions of its std over the states) and, per observation key, the spread of
+that key's coder output relative to its mean magnitude.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from torchrl_mpail2.diagnostics.latent_probe import fit_latent_probe
+
+#: Simulator positions the probes read, from ``RobosuiteEnv.privileged_state``.
+TARGETS = ("cube_pos", "eef_pos")
+
+
+def visited_states(agent, env, seeds: list[int], play: bool = True) -> tuple[TensorDictBase, dict[str, torch.Tensor]]:
+    """The observations ``[N]`` of ``len(seeds)`` episodes played by ``agent`` (deterministic), or of their initial
+    states alone (``play=False``), and the simulator's :data:`TARGETS` ``[N, 3]`` at each."""
+    from torchrl_mpail2.envs.robosuite_env import robosuite_base
+
+    base = robosuite_base(env)
+    if base is None:
+        raise ValueError("latent_content reads the simulator's cube and hand positions: it needs a robosuite env")
+    observations, targets = [], {key: [] for key in TARGETS}
+
+    def record(td):
+        observations.append(td.select(*agent.modules.encoder.in_keys).clone())
+        state = base.privileged_state()
+        for key in TARGETS:
+            targets[key].append(torch.as_tensor(state[key], dtype=torch.float32))
+
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        for seed in seeds:
+            env.set_seed(seed)
+            if agent.planner is not None:
+                agent.planner.reset()
+            td = env.reset()
+            record(td)
+            while play:
+                td = env.step(agent.policy(td))
+                done = bool(td["next", "done"].any())
+                td = step_mdp(td)
+                record(td)
+                if done:
+                    break
+    return torch.stack(observations), {key: torch.stack(v) for key, v in targets.items()}
+
+
+def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch.Tensor], seed: int = 0) -> dict:
+    """Probe scores and spreads of the latents of ``observations`` (see the module docstring)."""
+    net = agent.modules.encoder.net
+    with torch.no_grad():
+        z = agent.modules.encoder.encode(observations)
+        coders = {key: net.encode_key(key, observations[key]) for key in net.keys}
+    out = {"states": int(z.shape[0]), "latent_spread": float(z.std(0).mean()),
+           "coder_relative_spread": {key: float(f.std(0).mean() / f.abs().mean().clamp_min(1e-12))
+                                     for key, f in coders.items()}}
+    # the probe reads the latent standardised per dimension: what it holds, however small its variations (which the
+    # spread above reports, since the reward and the dynamics see them unscaled)
+    z_std = (z - z.mean(0)) / z.std(0).clamp_min(1e-12)
+    for key, y in targets.items():
+        _, stats = fit_latent_probe(z_std, y.clone(), seed=seed)
+        out[key] = {"held_out_r2": stats["held_out_r2"], "held_out_mae_m": stats["held_out_mae"],
+                    "std_m": float(y.std(0).mean())}
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.trainers.evaluation import (
+        HELD_OUT_SEED_OFFSET, evaluation_env, evaluation_seeds, run_eval_seed,
+    )
+
+    p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics latent_content", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--resets", type=int, default=200, help="initial states of held-out evaluation seeds")
+    p.add_argument("--episodes", type=int, default=3, help="episodes played by the checkpoint's agent")
+    p.add_argument("--untrained", action="store_true",
+                   help="re-initialise the encoder's weights first (its observation normalisation kept): what the "
+                        "same architecture reads before training, to compare with")
+    p.add_argument("--out", type=Path, default=None, help="also write the result to this JSON file")
+    args = p.parse_args(argv)
+    if min(args.episodes, args.resets) < 0 or args.episodes + args.resets == 0:
+        raise SystemExit("--episodes and --resets must be >= 0, one of them > 0")
+    agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
+    if args.untrained:
+        torch.manual_seed(0)
+        for module in agent.modules.encoder.modules():
+            if hasattr(module, "reset_parameters"):
+                module.reset_parameters()
+    train = agent.run_config["train"]
+    env = evaluation_env(train)
+    result = {"checkpoint": str(args.checkpoint), "untrained_encoder": args.untrained, "episodes": args.episodes,
+              "resets": args.resets}
+    try:
+        if args.resets:
+            seeds = evaluation_seeds(run_eval_seed(train) + HELD_OUT_SEED_OFFSET, args.resets)
+            result["at_reset"] = latent_content(agent, *visited_states(agent, env, seeds, play=False))
+        if args.episodes:
+            seeds = evaluation_seeds(run_eval_seed(train), args.episodes)
+            result["played"] = latent_content(agent, *visited_states(agent, env, seeds))
+    finally:
+        env.close()
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=2))
+    print(json.dumps(result, indent=2))
+    return result
