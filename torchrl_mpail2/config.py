@@ -168,13 +168,13 @@ class ModelConfig:
     """Output width of each per-key coder before fusion (Fig. 14: 512)."""
     cnn_channels: int = 32
     """Channels of the four 3x3 convolutions of the image coder."""
+    cnn_init: str = "torch"
+    """Initialisation of the image coder (``modules.encoder.CNN_INITS``): ``torch`` (PyTorch's defaults; the paper
+    states none) or ``kaiming`` (Kaiming-normal weights, zero biases: the pictures' differences keep their scale)."""
     image_norm: str = "centred"
     """How camera pixels enter the CNN (``modules.encoder.IMAGE_NORMS``): ``centred`` (x / 255 - 0.5, as the
     authors' code) or ``demos`` (each pixel and channel standardised by the demonstrations' mean and std, the std
     floored at ``modules.encoder.PIXEL_STD_FLOOR``, clipped at ``obs_clip``, as vector keys are)."""
-    image_shift: int = 0
-    """Pad in pixels of the random-shift augmentation (DrQ, TD-MPC2) of camera frames in the losses: each replayed
-    and expert frame is edge-padded and cropped back at a random offset; never when acting. 0: none (the paper)."""
     fuse_latent: bool = True
     """Fuse the coders' outputs with a latent MLP (True) or keep one latent block per key (compartmentalised)."""
     reward_latent_keys: tuple[str, ...] | None = None
@@ -196,7 +196,7 @@ class ModelConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "latent_dim": POSITIVE, "hidden_dims": POSITIVE, "vector_coder_hidden": POSITIVE, "coder_dim": POSITIVE,
-        "cnn_channels": POSITIVE, "image_shift": NON_NEGATIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
+        "cnn_channels": POSITIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
         "log_std_min": FINITE, "log_std_max": FINITE,
     }
 
@@ -209,6 +209,8 @@ class ModelConfig:
             raise ConfigError(f"ModelConfig.num_q must be >= 2 (two heads are drawn per target), got {self.num_q}")
         if self.log_std_min >= self.log_std_max:
             raise ConfigError("ModelConfig.log_std_min must be below log_std_max")
+        if self.cnn_init not in ("torch", "kaiming"):
+            raise ConfigError(f"unknown ModelConfig.cnn_init {self.cnn_init!r}; choose from ('torch', 'kaiming')")
         if self.image_norm not in ("centred", "demos"):
             raise ConfigError(f"unknown ModelConfig.image_norm {self.image_norm!r}; choose from ('centred', 'demos')")
         if self.reward_latent_keys is not None:
