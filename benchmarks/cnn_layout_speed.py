@@ -2,8 +2,10 @@
 
     python benchmarks/cnn_layout_speed.py [--frames 1792] [--grad-frames 512] [--rounds 5] [--name cnn_layout_speed]
 
-Variants: ``nchw`` (contiguous weights and input, the whole batch at once), ``channels_last`` (weights and input
-channels-last, what :class:`~torchrl_mpail2.modules.encoder.ImageCoder` does), and each in chunks of 64 frames.
+Variants: ``nchw`` (contiguous weights and input, the whole batch at once), ``input_channels_last`` (the input
+channels-last, the weights contiguous: the package before its image coder held channels-last weights),
+``channels_last`` (weights and input channels-last, what :class:`~torchrl_mpail2.modules.encoder.ImageCoder` does),
+and each in chunks of 64 frames.
 Two workloads: a stop-gradient encode of ``--frames`` uint8 frames (the dynamics loss's targets at batch 256, two
 cameras, H = 7) and a forward and backward pass of ``--grad-frames`` (the encoded first frames). One torch thread,
 glibc told to keep freed memory (``retain_freed_memory``, as the trainer does). Medians over rounds; writes
@@ -44,12 +46,14 @@ def main() -> None:
     torch.manual_seed(0)
     coder = ImageCoder((3, 64, 64), 32, 256)
     convs = [m for m in coder.convs if isinstance(m, torch.nn.Conv2d)]
-    layouts = {"nchw": torch.contiguous_format, "channels_last": torch.channels_last}
-    weights = {name: [(c.weight.detach().clone().contiguous(memory_format=fmt).requires_grad_(), c.bias)
+    # (input layout, weight layout) of each variant
+    layouts = {"nchw": (torch.contiguous_format,) * 2, "input_channels_last": (torch.channels_last, torch.contiguous_format),
+               "channels_last": (torch.channels_last,) * 2}
+    weights = {name: [(c.weight.detach().clone().contiguous(memory_format=fmt[1]).requires_grad_(), c.bias)
                       for c in convs] for name, fmt in layouts.items()}
 
     def encode(x, layout):
-        h = x.contiguous(memory_format=layouts[layout]).float() / 255.0 - 0.5
+        h = x.contiguous(memory_format=layouts[layout][0]).float() / 255.0 - 0.5
         for (w, b), conv in zip(weights[layout], convs):
             h = F.silu(F.conv2d(h, w, b, stride=conv.stride))
         return coder.out(h.flatten(1))

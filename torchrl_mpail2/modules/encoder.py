@@ -48,9 +48,11 @@ class ImageCoder(nn.Module):
 
     Accepts uint8 images in ``[0, 255]`` or float images in ``[0, 1]``, channels first ``[*B, 3, H, W]``, and
     standardises them by the buffers ``pixel_mean`` and ``pixel_std`` (0.5 and 1: the authors' centring, unless
-    :meth:`EncoderNet.set_normalization` set them from demonstrations), clipped at ``clip``. The convolutions run channels-last, oneDNN's fast layout on CPUs and the tensor cores' on GPUs (one thread of a
-    2-core AMD EPYC: 1.7 times faster for a forward and backward pass, 1.5 times for a stop-gradient encode); the
-    result is the channels-first computation's up to float rounding (``tests/test_modules.py``).
+    :meth:`EncoderNet.set_normalization` set them from demonstrations), clipped at ``clip``. The images go to
+    the convolutions channels-last, oneDNN's fast layout (one thread of a 2-core AMD EPYC: a stop-gradient encode 2.1
+    times faster than all-NCHW; weights held channels-last as well gained nothing more,
+    ``benchmarks/cnn_layout_speed.py``); the result is the channels-first computation's up to float rounding
+    (``tests/test_modules.py``).
 
     ``init="kaiming"`` (:data:`CNN_INITS`) keeps the scale of the pictures' differences through the layers: with
     PyTorch's defaults each layer shrinks them, and the coder's outputs (rms 0.02 for the point mass) fall below the
@@ -68,7 +70,7 @@ class ImageCoder(nn.Module):
         for stride in _CNN_STRIDES:
             layers += [nn.Conv2d(in_ch, channels, _CNN_KERNEL, stride=stride), nn.SiLU()]
             in_ch = channels
-        self.convs = nn.Sequential(*layers, nn.Flatten()).to(memory_format=torch.channels_last)
+        self.convs = nn.Sequential(*layers, nn.Flatten())
         with torch.no_grad():
             flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # 800 for 64x64 inputs
         self.out = nn.Sequential(nn.Linear(flat, out_dim), nn.SiLU())
