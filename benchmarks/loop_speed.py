@@ -106,7 +106,7 @@ def main() -> None:
     fields = {"presets": args.presets, "episodes_per_run": args.episodes, "warmup_episodes": warmup,
               "num_envs": args.num_envs, "overrides": args.overrides, "runs": rows}
     write_record(args.out, args.name, fields, args.note, ROOT,
-                 lambda commit: f"# Whole-loop speed (robosuite Lift, state)\n\n{table(rows)}\n\n"
+                 lambda commit: f"# Whole-loop speed ({', '.join(args.presets)})\n\n{table(rows)}\n\n"
                                 f"Commit {commit}; {args.episodes} episodes per run. {args.note}\n")
     print(table(rows))
 
