@@ -87,8 +87,9 @@ def _push_state_cpu() -> ExperimentConfig:
 def _pixels_cpu(state: ExperimentConfig) -> ExperimentConfig:
     """A state preset observed through the two 64 x 64 cameras and proprioception, sized for a CPU: the state
     presets' latent (128, not Table 4's 512 for images: planning costs a quarter), batch 64 and UTD 0.5 (an update
-    encodes B x (H + 1) frames per camera for the dynamics targets alone; at batch 64 it took 0.86 s on one thread
-    of a loaded 2-core AMD EPYC against 3.5 s at 256, ``docs/results/speed/update_speed_cameras.md``)."""
+    encodes B x (H + 1) frames per camera for the dynamics targets alone; at batch 64 it took 0.44 s on one thread
+    of a 2-core AMD EPYC against 1.6 s at 256 and 2.2 s for Table 4's networks at 256, ``docs/results/cameras.md``).
+    Not measured in learning against other settings yet."""
     cfg = state
     cfg.train.obs = "pixels"
     cfg.train.batch_size, cfg.train.utd = 64, 0.5
