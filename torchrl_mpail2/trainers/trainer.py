@@ -22,6 +22,7 @@ from tqdm.auto import tqdm
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
+from torchrl_mpail2.envs.keys import observation_keys_of
 from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import crossed_multiple, episode_bound, make_collector, split_episodes
@@ -30,7 +31,6 @@ from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episod
                                                 evaluation_seeds, summarize_outcomes)
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.plots import plot_run
-from torchrl_mpail2.envs.keys import observation_keys_of
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
