@@ -1,4 +1,6 @@
 """Minari import on datasets written by minari's own writer (``create_dataset_from_buffers``)."""
+import os
+
 import numpy as np
 import pytest
 
@@ -56,3 +58,14 @@ def test_another_task_or_control_rate_or_folder_is_refused_by_name(tmp_path, mon
         import_minari(folder, make_env("gym/Hopper-v5"))
     with pytest.raises(FileNotFoundError, match="not a Minari dataset folder"):
         import_minari(tmp_path, make_env("gym/Hopper-v5"))
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_a_truncated_main_data_file_is_refused_naming_it(tmp_path, monkeypatch):
+    from torchrl_mpail2.data.minari_import import import_minari
+
+    folder, _ = write_dataset(tmp_path, monkeypatch, episodes=1, steps=5)
+    data_file = folder / "data" / "main_data.hdf5"
+    os.truncate(data_file, data_file.stat().st_size // 2)
+    with pytest.raises(ValueError, match=r"main_data\.hdf5 cannot be read as HDF5: the file is truncated"):
+        import_minari(folder, make_env("gym/Hopper-v5"))

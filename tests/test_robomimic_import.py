@@ -2,6 +2,7 @@
 by ``tests/data/make_robomimic_lift.py``: 2 scripted Lift episodes, low-dim with ``next_obs``; 1 episode with both
 84 x 84 cameras, ``--exclude-next-obs``)."""
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -153,3 +154,53 @@ def test_train_split_the_source_prefix_and_the_command_line(tmp_path, lift_state
     main(["import", "robomimic", str(LOW_DIM), "--env", "robosuite/Lift", "--out", str(out), "--no-progress"])
     saved = load_demos(out, lift_state_env)
     assert saved.num_episodes == 2 and saved.header["source"]["format"] == "robomimic"
+
+
+def test_a_truncated_file_is_refused_naming_it(tmp_path, lift_state_env):
+    cut = tmp_path / "cut.hdf5"
+    shutil.copy(LOW_DIM, cut)
+    os.truncate(cut, cut.stat().st_size // 2)
+    with pytest.raises(ValueError, match=r"cut\.hdf5 cannot be read as HDF5: the file is truncated"):
+        import_robomimic(cut, lift_state_env)
+
+
+def test_env_args_that_is_not_json_is_refused_naming_file_and_attribute(tmp_path, lift_state_env):
+    copy = _edited_copy(tmp_path, lambda f: f["data"].attrs.__setitem__("env_args", "{env_name: Lift"))
+    with pytest.raises(ValueError, match=r"edited\.hdf5: the attribute 'env_args' is not JSON"):
+        import_robomimic(copy, lift_state_env)
+
+
+def _emptied(demo, keys=None):
+    """Replaces the datasets of ``demo`` (all of them, or its top-level ``keys``) by ones of 0 rows."""
+    def empty(group, name):
+        dataset = group[name]
+        shape, dtype = dataset.shape, dataset.dtype
+        del group[name]
+        group.create_dataset(name, shape=(0, *shape[1:]), dtype=dtype)
+
+    for name in keys or list(demo.keys()):
+        if isinstance(demo[name], h5py.Group):
+            for inner in list(demo[name].keys()):
+                empty(demo[name], inner)
+        else:
+            empty(demo, name)
+
+
+def test_demos_without_steps_are_skipped_by_name_and_a_file_of_none_is_refused(tmp_path, lift_state_env):
+    copy = _edited_copy(tmp_path, lambda f: _emptied(f["data"]["demo_1"]))
+    with pytest.warns(RuntimeWarning, match=r"edited\.hdf5: demo_1 holds fewer than 2 observations .*skipped"):
+        demos = import_robomimic(copy, lift_state_env)
+    assert demos.num_episodes == 1 and demos.header["source"]["demos"] == ["demo_2"]
+    assert demos.header["source"]["skipped"] == ["demo_1"]
+    with h5py.File(copy, "r+") as f:
+        _emptied(f["data"]["demo_2"])
+    refused = r"edited\.hdf5: none of its demos holds a transition \(all skipped: \['demo_1', 'demo_2'\]\)"
+    with pytest.warns(RuntimeWarning), pytest.raises(ValueError, match=refused):
+        import_robomimic(copy, lift_state_env)
+
+
+def test_a_demo_with_empty_rewards_is_imported_with_its_success_unrecorded(tmp_path, lift_state_env):
+    copy = _edited_copy(tmp_path, lambda f: _emptied(f["data"]["demo_2"], ["rewards"]))
+    with pytest.warns(RuntimeWarning, match=r"edited\.hdf5: demo_2/rewards is missing or empty"):
+        demos = import_robomimic(copy, lift_state_env)
+    assert demos.num_episodes == 2 and np.isnan(demos.success_rate)

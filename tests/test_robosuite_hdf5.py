@@ -1,6 +1,8 @@
 """robosuite's teleoperation recordings, written by robosuite's own DataCollectionWrapper and
-gather_demonstrations_as_hdf5, imported by replaying their states through this library's env."""
+gather_demonstrations_as_hdf5, imported by replaying their states through this library's env; bad files written
+by hand in the same layout."""
 import json
+import os
 
 import h5py
 import numpy as np
@@ -160,3 +162,53 @@ def test_a_demonstrations_frames_match_the_learners_frames_of_the_same_states(tm
         assert first.max() <= 1 and first.mean() < 0.01, key
         # later states: the physics substep of the replay (see the state test above) moves edges by a pixel
         assert (got[key].float() - live[key].float()).abs().mean() < 3, key
+
+
+@pytest.fixture(scope="module")
+def lift_and_state():
+    """A Lift env, its model's MJCF and its flattened mujoco state after a reset (32 wide)."""
+    env = make_env("robosuite/Lift", seed=0)
+    env.reset()
+    sim = _base(env).sim_env.sim
+    return env, sim.model.get_xml(), sim.get_state().flatten()
+
+
+def _hand_written(path, xml, states, env_info='{"env_name": "Lift"}'):
+    """A demo.hdf5 in robosuite's layout holding one demo of the given states (zero actions)."""
+    with h5py.File(path, "w") as f:
+        data = f.create_group("data")
+        data.attrs["env"], data.attrs["env_info"] = "Lift", env_info
+        demo = data.create_group("demo_1")
+        demo.attrs["model_file"] = xml
+        demo.create_dataset("states", data=states)
+        demo.create_dataset("actions", data=np.zeros((len(states), 7)))
+    return path
+
+
+def test_a_truncated_demo_hdf5_is_refused_naming_it(tmp_path, lift_and_state):
+    env, xml, state = lift_and_state
+    cut = _hand_written(tmp_path / "demo.hdf5", xml, np.stack([state] * 3))
+    os.truncate(cut, cut.stat().st_size // 2)
+    with pytest.raises(ValueError, match=r"demo\.hdf5 cannot be read as HDF5: the file is truncated"):
+        import_robosuite_hdf5(cut, env, progress=False)
+
+
+def test_env_info_that_is_not_json_is_refused_naming_file_and_attribute(tmp_path, lift_and_state):
+    env, xml, state = lift_and_state
+    path = _hand_written(tmp_path / "demo.hdf5", xml, np.stack([state] * 3), env_info="{env_name: Lift")
+    with pytest.raises(ValueError, match=r"demo\.hdf5: the attribute 'env_info' is not JSON"):
+        import_robosuite_hdf5(path, env, progress=False)
+
+
+def test_states_with_nan_or_of_another_width_are_refused_naming_the_demo(tmp_path, lift_and_state):
+    env, xml, state = lift_and_state
+    states = np.stack([state] * 3)
+    good = import_robosuite_hdf5(_hand_written(tmp_path / "good.hdf5", xml, states), env, progress=False)
+    assert good.episode_lengths == [2]  # the file is well made but for the faults below
+    with_nan = states.copy()
+    with_nan[1, 5] = np.nan
+    with pytest.raises(ValueError, match=r"nan\.hdf5: demo_1/states holds NaN or Inf at step\(s\) \[1\]"):
+        import_robosuite_hdf5(_hand_written(tmp_path / "nan.hdf5", xml, with_nan), env, progress=False)
+    with pytest.raises(ValueError, match=rf"narrow\.hdf5: demo_1/states are 20 wide, the flattened mujoco state of "
+                                         rf"its model_file is {state.size} wide"):
+        import_robosuite_hdf5(_hand_written(tmp_path / "narrow.hdf5", xml, states[:, :20]), env, progress=False)

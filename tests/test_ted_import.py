@@ -1,4 +1,6 @@
-"""TED import on data written by TorchRL's own collector and replay buffer."""
+"""TED import on data written by TorchRL's own collector and replay buffer, and on bad TED folders."""
+import os
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -67,3 +69,43 @@ def test_trajcounter_ids_are_found_too():
     rollout = env.rollout(30, break_when_any_done=False)
     assert demos_from_ted(rollout, ["observation"]).num_steps == 30
     assert isinstance(rollout, TensorDict)
+
+
+def synthetic_ted(lengths=(50, 50, 50), dim=4):
+    """Consistent TED transitions of point-mass-shaped observations, ``len(lengths)`` episodes with ids."""
+    generator = torch.Generator().manual_seed(0)
+    parts = []
+    for i, steps in enumerate(lengths):
+        obs = torch.randn(steps + 1, dim, generator=generator)
+        parts.append(TensorDict({"observation": obs[:-1], ("next", "observation"): obs[1:],
+                                 "episode": torch.full((steps,), i)}, [steps]))
+    return torch.cat(parts)
+
+
+def test_a_truncated_memmap_is_refused_naming_the_file_and_both_sizes(tmp_path):
+    synthetic_ted().memmap(tmp_path / "ted")  # 150 transitions: episode.memmap holds 150 int64, 1200 bytes
+    cut = tmp_path / "ted" / "episode.memmap"
+    assert cut.stat().st_size == 1200
+    os.truncate(cut, 400)  # read back, the ids of the last 100 transitions would be zeros
+    expected = r"episode\.memmap is truncated or corrupted: 400 bytes on disk, 1200 expected"
+    with pytest.raises(ValueError, match=expected):
+        load_demo_source(f"ted:{tmp_path / 'ted'}", make_env("point_mass"))
+
+
+def test_nan_in_ted_observations_is_reported_with_key_and_episode(tmp_path):
+    data = synthetic_ted()
+    data["next", "observation"][70, 2] = float("nan")  # episode 1, and its step 71 observation with it
+    data["observation"][71, 2] = float("nan")
+    data.memmap(tmp_path / "ted")
+    with pytest.raises(ValueError, match=r"TED data .*ted: observation key 'observation' holds NaN or Inf in "
+                                         r"episode\(s\) \[1\]"):
+        load_demo_source(f"ted:{tmp_path / 'ted'}", make_env("point_mass"))
+    data["observation"][71, 2] = 0.0  # the next-observation alone
+    with pytest.raises(ValueError, match=r"key \('next', 'observation'\) holds NaN or Inf in episode\(s\) \[1\]"):
+        demos_from_ted(data, ["observation"])
+
+
+def test_ted_data_without_transitions_is_refused_naming_the_folder(tmp_path):
+    synthetic_ted(lengths=(0,)).memmap(tmp_path / "empty_ted")
+    with pytest.raises(ValueError, match=r"TED data .*empty_ted holds no transitions"):
+        load_demo_source(f"ted:{tmp_path / 'empty_ted'}", make_env("point_mass"))

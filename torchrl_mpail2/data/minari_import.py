@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.data.hdf5_files import open_hdf5
 
 __all__ = ["import_minari"]
 
@@ -24,6 +25,13 @@ def _data_folder(path: Path) -> Path:
         if (folder / "metadata.json").is_file():
             return folder
     raise FileNotFoundError(f"{path}: not a Minari dataset folder (no metadata.json in it or in its data/)")
+
+
+def _check_hdf5_files(folder: Path) -> None:
+    """Opens each HDF5 file of the dataset once, so that one cut short is refused by name (Minari would open it
+    mid-iteration and pass on h5py's error, which names no file)."""
+    for file in sorted(folder.glob("*.hdf5")):
+        open_hdf5(file).close()
 
 
 def _gym_env(env):
@@ -58,6 +66,11 @@ def import_minari(path: str | Path, env=None, *, max_demos: int | None = None, p
     Keyword Args:
         max_demos (int, optional): import only the first ``max_demos`` episodes.
         progress (bool): show a progress bar over episodes.
+
+    Raises:
+        FileNotFoundError: ``path`` is not a Minari dataset folder.
+        ValueError: the dataset was collected on another task or at another control rate, or its HDF5 file is
+            truncated (the file is named).
     """
     try:
         import minari
@@ -66,7 +79,9 @@ def import_minari(path: str | Path, env=None, *, max_demos: int | None = None, p
     from tqdm import tqdm
 
     path = Path(path).expanduser()
-    dataset = minari.MinariDataset(_data_folder(path))
+    folder = _data_folder(path)
+    _check_hdf5_files(folder)
+    dataset = minari.MinariDataset(folder)
     _check_task(dataset.spec.env_spec, env, path)
     count = dataset.total_episodes if max_demos is None else min(max_demos, dataset.total_episodes)
     episodes, returns = [], []

@@ -17,7 +17,7 @@ actions as the env's own controller would. Actions, rewards and dones are droppe
 """
 from __future__ import annotations
 
-import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -27,6 +27,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.data.hdf5_files import json_attribute, open_hdf5
 from torchrl_mpail2.data.robosuite_hdf5 import sorted_demo_names
 
 __all__ = ["ROBOMIMIC_KEY_MAP", "KeyRule", "import_robomimic"]
@@ -75,7 +76,7 @@ def _check_env_args(path: Path, data, base) -> dict:
     """``env_args`` of the file, checked against the env's task and control rate."""
     if "env_args" not in data.attrs:
         raise ValueError(f"{path}: the 'data' group has no 'env_args' attribute (not a robomimic dataset)")
-    env_args = json.loads(data.attrs["env_args"])
+    env_args = json_attribute(path, data.attrs, "env_args")
     if base is None:
         return env_args
     task = env_args.get("env_name")
@@ -112,26 +113,41 @@ def _rules(path: Path, keys: list[str], image_sizes: dict, key_map: dict) -> dic
     return rules
 
 
-def _episode(path: Path, name: str, demo, rules: dict[str, KeyRule], image_sizes: dict) -> dict:
+def _episode(path: Path, name: str, demo, rules: dict[str, KeyRule], image_sizes: dict) -> dict | None:
+    """The demo's observations in this library's keys, or None for a demo without a transition (fewer than 2)."""
     if "obs" not in demo:
         raise ValueError(f"{path}: {name} has no 'obs' group")
-    out = {}
+    frames = {}
     for key, rule in rules.items():
-        parts = []
         for source in rule.sources:
             if source not in demo["obs"]:
                 raise ValueError(f"{path}: {name}/obs has no {source!r}, needed for this library's {key!r} "
                                  f"(its keys: {sorted(demo['obs'].keys())})")
-            frames = np.asarray(demo["obs"][source])
+            frames[source] = np.asarray(demo["obs"][source])
             if "next_obs" in demo and source in demo["next_obs"]:
-                frames = np.concatenate([frames, np.asarray(demo["next_obs"][source][-1:])])
-            parts.append(frames)
+                frames[source] = np.concatenate([frames[source], np.asarray(demo["next_obs"][source][-1:])])
+    if min(len(f) for f in frames.values()) < 2:
+        return None
+    out = {}
+    for key, rule in rules.items():
+        parts = [frames[source] for source in rule.sources]
         if key in image_sizes:
             out[key] = _chw_resized(parts[0], image_sizes[key])
         else:
             vector = np.concatenate([part.reshape(len(part), -1) for part in parts], axis=-1)
             out[key] = (vector if rule.convert is None else rule.convert(vector)).astype(np.float32)
     return out
+
+
+def _success(path: Path, name: str, demo) -> bool | None:
+    """Whether the demo succeeded at its last step, from robosuite's sparse reward (1 exactly on success steps);
+    None, with a warning naming the demo, where its ``rewards`` are missing or empty."""
+    rewards = np.asarray(demo["rewards"]) if "rewards" in demo else np.zeros(0)
+    if rewards.size == 0:
+        warnings.warn(f"{path}: {name}/rewards is missing or empty: the demos' success is not recorded",
+                      RuntimeWarning, stacklevel=3)
+        return None
+    return bool(rewards.reshape(-1)[-1] >= 1.0)
 
 
 def _gripper_commands(base, actions: np.ndarray, length: int) -> np.ndarray:
@@ -163,11 +179,14 @@ def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, fil
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: the file is not a robomimic dataset, was recorded on another task or at another control rate,
-            or lacks a key the env observes (the file, demo and both keys are named).
-    """
-    import h5py
+        ValueError: the file is not a robomimic dataset, is truncated, has an ``env_args`` that is not JSON, was
+            recorded on another task or at another control rate, lacks a key the env observes (the file, demo and
+            both keys are named), or holds no demo with a transition.
 
+    Warns:
+        RuntimeWarning: a demo without a transition is skipped, by name; a demo without rewards leaves the
+            success of the demos unrecorded.
+    """
     from torchrl_mpail2.envs.keys import observation_keys_of
     from torchrl_mpail2.envs.robosuite_env import robosuite_base
 
@@ -182,25 +201,33 @@ def import_robomimic(path: str | Path, env, *, max_demos: int | None = None, fil
                    if len(env.observation_spec[key].shape) == 3}
     rules = _rules(path, keys, image_sizes, {**ROBOMIMIC_KEY_MAP, **(key_map or {})})
     episodes, successes = [], []
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path) as f:
         if "data" not in f:
             raise ValueError(f"{path}: no 'data' group (not a robomimic dataset); groups: {list(f.keys())}")
         env_args = _check_env_args(path, f["data"], base)
-        # robosuite's sparse reward is 1 exactly on success steps (success at the last step is what demos record);
-        # a shaped one says nothing certain about success
+        # a shaped reward says nothing certain about success
         sparse = env_args.get("env_kwargs", {}).get("reward_shaping") is False
         names = _selected_demos(path, f, filter_key, max_demos)
+        kept, skipped = [], []
         for name in tqdm(names, desc=f"reading {path.name}", disable=not progress):
             demo = f["data"][name]
             episode = _episode(path, name, demo, rules, image_sizes)
+            if episode is None:
+                warnings.warn(f"{path}: {name} holds fewer than 2 observations (no transition): skipped",
+                              RuntimeWarning, stacklevel=2)
+                skipped.append(name)
+                continue
             if command_in_proprio and "proprio" in episode:
                 commands = _gripper_commands(base, np.asarray(demo["actions"]), len(episode["proprio"]))
                 episode["proprio"] = np.concatenate([episode["proprio"], commands], axis=-1)
             episodes.append(episode)
-            successes.append(bool(np.asarray(demo["rewards"])[-1] >= 1.0) if sparse and "rewards" in demo else None)
+            kept.append(name)
+            successes.append(_success(path, name, demo) if sparse else None)
+    if not episodes:
+        raise ValueError(f"{path}: none of its demos holds a transition (all skipped: {skipped})")
     env_id = f"robosuite/{base.task}" if base is not None else "custom"
     demos = demos_from_arrays(episodes, env_id=env_id,
                               success=successes if None not in successes else None)
-    demos.header["source"] = {"format": "robomimic", "path": str(path.resolve()), "demos": names,
+    demos.header["source"] = {"format": "robomimic", "path": str(path.resolve()), "demos": kept, "skipped": skipped,
                               "filter_key": filter_key, "dropped": ["actions", "rewards", "dones", "states"]}
     return demos

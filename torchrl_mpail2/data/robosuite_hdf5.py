@@ -10,13 +10,13 @@ advance the gripper command where the env observes it; they and any rewards are 
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.data.hdf5_files import json_attribute, open_hdf5
 
 __all__ = ["import_robosuite_hdf5"]
 
@@ -44,6 +44,20 @@ def sorted_demo_names(names) -> list[str]:
         return sorted(names)
 
 
+def _check_states(path: Path, name: str, states: np.ndarray, width: int | None = None) -> None:
+    """Refuses a demo's ``states`` ``[T, S]`` that are not finite, or whose ``S`` is not ``width`` (the flattened
+    mujoco state of the demo's model), naming the file and the demo; mujoco would fail on them mid-replay."""
+    if states.ndim != 2:
+        raise ValueError(f"{path}: {name}/states has shape {states.shape}, expected [T, S] (flattened mujoco states)")
+    bad = ~np.isfinite(states).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{path}: {name}/states holds NaN or Inf at step(s) {np.flatnonzero(bad)[:10].tolist()} "
+                         f"({int(bad.sum())} of {len(states)} states)")
+    if width is not None and states.shape[1] != width:
+        raise ValueError(f"{path}: {name}/states are {states.shape[1]} wide, the flattened mujoco state of its "
+                         f"model_file is {width} wide (sim.get_state().flatten())")
+
+
 def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None,
                           progress: bool = True) -> Demonstrations:
     """Replays a robosuite ``demo.hdf5`` through ``env`` and keeps its observations.
@@ -63,17 +77,16 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: the file is not a robosuite recording (the missing group, attribute or dataset is named), was
-            recorded on another task, or at another control rate than ``env``'s.
+        ValueError: the file is not a robosuite recording (the missing group, attribute or dataset is named), is
+            truncated, has an ``env_info`` that is not JSON, was recorded on another task or at another control
+            rate than ``env``'s, or a demo's states are not finite or not as wide as its model's state.
     """
-    import h5py
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no robosuite recording at {path}")
     base = _robosuite_base(env)
     episodes, successes = [], []
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path) as f:
         if "data" not in f:
             raise ValueError(f"{path}: no 'data' group (not a robosuite demo.hdf5); groups: {list(f.keys())}")
         data = f["data"]
@@ -82,7 +95,7 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
             raise ValueError(f"{path}: the 'data' group has no 'env' attribute naming the task")
         if str(task) != base.task:
             raise ValueError(f"{path} was recorded on robosuite task {task!r}, the env is {base.task!r}")
-        env_info = json.loads(data.attrs["env_info"]) if "env_info" in data.attrs else {}
+        env_info = json_attribute(path, data.attrs, "env_info", default={})
         recorded_hz = env_info.get(CONTROL_FREQ_FIELD)
         if recorded_hz is not None and float(recorded_hz) != float(base.sim_env.control_freq):
             raise ValueError(f"{path} was recorded at {recorded_hz} Hz ({CONTROL_FREQ_FIELD} in env_info), "
@@ -101,7 +114,9 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
             if len(states) < 2 or len(states) != len(actions):
                 raise ValueError(f"{path}: {name} holds {len(states)} states and {len(actions)} actions "
                                  "(need as many of each, at least 2)")
+            _check_states(path, name, states)
             base.load_model_xml(demo.attrs["model_file"])
+            _check_states(path, name, states, width=base.sim_env.sim.get_state().flatten().size)
             frames = []
             for t, state in enumerate(states):
                 frames.append(base.observe_state(state))

@@ -8,6 +8,8 @@ episode of ``T`` transitions becomes its ``T + 1`` observations; actions and rew
 """
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -15,7 +17,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
-from torchrl_mpail2.data.demos import Demonstrations, demos_from_arrays
+from torchrl_mpail2.data.demos import EPISODE_KEY, Demonstrations, _check_finite, demos_from_arrays
 from torchrl_mpail2.envs.keys import observation_keys_of
 
 __all__ = ["EPISODE_ID_KEYS", "demos_from_ted", "import_ted"]
@@ -39,6 +41,15 @@ def _episode_slices(data: TensorDictBase, episode_key: NestedKey | None) -> list
     return [slice(a, b) for a, b in zip(starts, [*starts[1:], n])]
 
 
+def _observations_by_episode(data: TensorDictBase, observation_keys: Sequence[str],
+                             slices: list[slice]) -> TensorDict:
+    """The observation keys (at the root and under ``"next"``) with the episode index of each transition, in the
+    layout :func:`~torchrl_mpail2.data.demos._check_finite` reads."""
+    episode = torch.cat([torch.full((part.stop - part.start,), i) for i, part in enumerate(slices)])
+    columns = {full: data.get(full) for key in observation_keys for full in (key, ("next", key))}
+    return TensorDict({**columns, EPISODE_KEY: episode}, batch_size=data.batch_size)
+
+
 def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env_id: str = "custom",
                    episode_key: NestedKey | None = None, source: str | None = None) -> Demonstrations:
     """Groups a TED batch by episode into observation-only demonstrations.
@@ -56,8 +67,9 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
 
     Raises:
         KeyError: an observation key missing at the root or under ``"next"``, or a missing ``episode_key``.
-        ValueError: an episode whose transitions do not follow one another (``next`` of step t differs from the
-            observation of step t + 1: out of time order, or episodes interleaved without an id key).
+        ValueError: no transitions; NaN or Inf in an observation (the key and the episodes are named); an episode
+            whose transitions do not follow one another (``next`` of step t differs from the observation of step
+            t + 1: out of time order, or episodes interleaved without an id key).
 
     Examples:
         >>> obs = torch.arange(12.0).reshape(6, 2)
@@ -67,8 +79,11 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
         >>> demos_from_ted(td, ["observation"]).episode_lengths
         [3, 2]
     """
+    where = f"TED data {source}" if source else "TED data"
     if data.batch_dims == 0:
-        raise ValueError("a TED batch needs at least one batch dimension (transitions)")
+        raise ValueError(f"{where}: a TED batch needs at least one batch dimension (transitions)")
+    if math.prod(data.batch_size) == 0:  # (TensorDict.numel() is 1 for an empty batch)
+        raise ValueError(f"{where} holds no transitions")
     data = data.reshape(-1)
     for key in observation_keys:
         for full in (key, ("next", key)):
@@ -78,12 +93,15 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
         episode_key = next((k for k in EPISODE_ID_KEYS if data.get(k, None) is not None), None)
     elif data.get(episode_key, None) is None:
         raise KeyError(f"TED data has no episode key {episode_key!r}")
+    slices = _episode_slices(data, episode_key)
+    # before the order check, which NaN (unequal to itself) would fail with a misleading message
+    _check_finite(_observations_by_episode(data, observation_keys, slices), ValueError, where)
     episodes = []
-    for i, part in enumerate(_episode_slices(data, episode_key)):
+    for i, part in enumerate(slices):
         ep = data[part]
         for key in observation_keys:
             if not torch.equal(ep.get(("next", key))[:-1], ep.get(key)[1:]):
-                raise ValueError(f"episode {i} ({part.start}..{part.stop - 1}) of the TED data: ('next', {key!r}) of a "
+                raise ValueError(f"episode {i} ({part.start}..{part.stop - 1}) of the {where}: ('next', {key!r}) of a "
                                  "step differs from the next step's observation (transitions out of order, or "
                                  "episodes interleaved without an episode-id key)")
         episodes.append({key: torch.cat([ep.get(key), ep.get(("next", key))[-1:]]) for key in observation_keys})
@@ -93,11 +111,38 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
     return demos
 
 
+def _check_memmap_sizes(folder: Path) -> None:
+    """Refuses a ``<key>.memmap`` file whose size differs from the shape and dtype its folder's ``meta.json``
+    records, naming the file and both sizes: a memory-mapped file cut short would otherwise read as zeros."""
+    for meta_file in sorted(folder.rglob("meta.json")):
+        meta = json.loads(meta_file.read_text())
+        for key, entry in meta.items():
+            if not isinstance(entry, dict) or "shape" not in entry or "dtype" not in entry or entry.get("is_nested"):
+                continue  # the tensordict's own shape, a sub-tensordict, or a nested tensor (no fixed size)
+            dtype = getattr(torch, str(entry["dtype"]).removeprefix("torch."), None)
+            if not isinstance(dtype, torch.dtype):
+                continue
+            expected = math.prod(entry["shape"]) * dtype.itemsize
+            file = meta_file.parent / f"{key}.memmap"
+            size = file.stat().st_size if file.is_file() else 0
+            if size != expected:
+                found = f"{size} bytes on disk" if file.is_file() else "missing"
+                raise ValueError(f"{file} is truncated or corrupted: {found}, {expected} expected from its shape "
+                                 f"{entry['shape']} and dtype {entry['dtype']} in {meta_file}")
+
+
 def import_ted(path: str | Path, env, *, progress: bool = False) -> Demonstrations:
     """Demonstrations from a TED tensordict saved with ``td.memmap(path)`` (``train.demos=ted:PATH``), keeping the
-    observation keys of ``env``."""
+    observation keys of ``env``.
+
+    Raises:
+        FileNotFoundError: ``path`` holds no memory-mapped tensordict.
+        ValueError: a memmap file's size differs from its recorded shape and dtype (the file and both sizes are
+            named), or the data is refused by :func:`demos_from_ted`.
+    """
     path = Path(path)
     if not (path / "meta.json").is_file():
         raise FileNotFoundError(f"{path}: not a memory-mapped tensordict (no meta.json); save one with td.memmap(path)")
+    _check_memmap_sizes(path)
     data = TensorDict.load_memmap(path)
     return demos_from_ted(data, observation_keys_of(env), source=str(path.resolve()))
