@@ -17,8 +17,10 @@ import sys
 import textwrap
 
 from torchrl_mpail2.config import ConfigError, field_docs, field_kind
+from torchrl_mpail2.data.checkpoint import CheckpointError
 from torchrl_mpail2.trainers.config import RESUME_FIELDS, ExperimentConfig, apply_overrides
 from torchrl_mpail2.trainers.presets import PRESETS, preset
+from torchrl_mpail2.trainers.run_folder import RunFolderError
 
 
 def build_parser(default_preset: str, description: str | None) -> argparse.ArgumentParser:
@@ -28,6 +30,8 @@ def build_parser(default_preset: str, description: str | None) -> argparse.Argum
     p.add_argument("--obs", help="shorthand for train.obs=OBS: state | pixels | external_pixels (robosuite)")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help=f"continue the run in RUN_DIR from its newest complete checkpoint (overrides: {', '.join(RESUME_FIELDS)})")
+    p.add_argument("--allow-other-demos", action="store_true",
+                   help="with --resume: go on although the demonstrations differ from those the run was trained on")
     p.add_argument("--overwrite", action="store_true", help="replace the run already in train.run_dir")
     p.add_argument("--init-from", metavar="CKPT", help="initialise weights from another run's checkpoint folder")
     p.add_argument("--transfer", default="all", choices=["all", "world-model"])
@@ -66,16 +70,21 @@ def main(argv: list[str] | None = None, default_preset: str = "lift_state", desc
     args, overrides = parser.parse_known_args(argv)
     try:
         return _run(args, overrides)
-    except ConfigError as error:  # a bad field or value: the message names it; a traceback would add nothing
+    except (ConfigError, RunFolderError) as error:  # a bad field, value or run folder: the message names it
         parser.exit(2, f"{parser.prog}: error: {error}\n")
+    except CheckpointError as error:  # a damaged or unfitting checkpoint, or a full disk: named in the message
+        parser.exit(1, f"{parser.prog}: error: {error}\n")
 
 
 def _run(args, overrides: list[str]) -> dict | None:
     from torchrl_mpail2.trainers.trainer import MPAIL2Trainer
 
     if args.resume:
+        if args.init_from:
+            raise ConfigError(f"--init-from {args.init_from} with --resume {args.resume}: a resumed run keeps its own "
+                              "weights; transfer into a new run instead")
         try:
-            trainer = MPAIL2Trainer.resume(args.resume, overrides)
+            trainer = MPAIL2Trainer.resume(args.resume, overrides, allow_other_demos=args.allow_other_demos)
         except (ConfigError, FileNotFoundError) as error:
             raise ConfigError(f"--resume {args.resume}: {error}") from error
     else:

@@ -119,23 +119,38 @@ class MPAIL2Agent:
     def load_state_dict(self, state: dict, *, with_optimizers: bool = True) -> None:
         """Restores networks, loss state (``log_alpha``, targets, reward scale), planner warm start and, with
         ``with_optimizers``, the optimisers."""
-        self.modules.load_state_dict(state["modules"])
+        load_weights(self.modules, state["modules"], "the checkpoint")
         self.loss.load_state_dict(state["loss"])
         if with_optimizers:
             self.updater.load_state_dict(state["updater"])
         if self.planner is not None and state.get("planner") is not None:
             self.planner.set_extra_state(state["planner"])
 
-    def transfer_from(self, path: str | Path, transfer: str = "all") -> None:
+    def transfer_from(self, path: str | Path, transfer: str = "all", config: dict | None = None) -> None:
         """Copies the networks of another run's checkpoint: ``all`` of them (the value targets too) or only the
-        ``world-model`` (encoder and dynamics); optimisers and loss state stay as they are."""
+        ``world-model`` (encoder and dynamics); optimisers and loss state stay as they are.
+
+        Args:
+            path: the checkpoint folder (verified against its manifest).
+            transfer (str): ``"all"`` or ``"world-model"``.
+            config (dict, optional): this run's config (sections of dicts): the checkpoint's must agree on the
+                fields that shape the networks (:data:`~torchrl_mpail2.data.checkpoint.NETWORK_FIELDS` but
+                ``train.env``: transfer goes to another task).
+
+        Raises:
+            CheckpointError: the checkpoint is damaged, or its networks differ from this agent's (the message
+                names the config fields, or the parameters and their shapes).
+        """
         if transfer not in TRANSFER_PARTS:
             raise ValueError(f"transfer must be one of {sorted(TRANSFER_PARTS)}, got {transfer!r}")
-        weights = ckpt.read_checkpoint(path)["modules"]
+        state = ckpt.read_checkpoint(path)
+        if config is not None and isinstance(state.get("config"), dict):
+            ckpt.check_compatible(migrate_config_data(state["config"]), config, Path(path), ignore=("train.env",))
+        weights = state["modules"]
         for part in TRANSFER_PARTS[transfer]:
             prefix = part + "."
-            getattr(self.modules, part).load_state_dict(
-                {k[len(prefix):]: v for k, v in weights.items() if k.startswith(prefix)})
+            load_weights(getattr(self.modules, part), {k[len(prefix):]: v for k, v in weights.items()
+                                                       if k.startswith(prefix)}, f"{path} ({part})")
         if transfer == "all":
             value_loss = self.loss.value_loss
             value_loss.target_qvalue_network_params.data.update_(value_loss.qvalue_network_params.data)
@@ -178,9 +193,39 @@ class MPAIL2Agent:
                         ablation=train.get("ablation", "none"),
                         update_precision=train.get("update_precision", "float32"),
                         observation_keys=state.get("observation_keys"), device=device)
+            agent.load_state_dict(state, with_optimizers=with_optimizers)
+        except (ckpt.CheckpointError, KeyError, ValueError) as error:
+            if own_env:
+                raise
+            raise ckpt.CheckpointError(f"{path} was written for train.env={train['env']!r} (train.obs="
+                                       f"{train['obs']!r}); the env given ({_describe_specs(env)}) does not fit it: "
+                                       f"{error}") from error
         finally:
             if own_env:
                 env.close()
-        agent.load_state_dict(state, with_optimizers=with_optimizers)
         agent.run_config = config
         return agent
+
+
+def load_weights(module: torch.nn.Module, weights: dict, source: str) -> None:
+    """``module.load_state_dict(weights)``, refused with every differing parameter named (its shape in
+    ``source`` and here) instead of PyTorch's size-mismatch error.
+
+    Raises:
+        CheckpointError: a parameter is missing, extra or of another shape.
+    """
+    own = module.state_dict()
+    differ = [f"{name}: {tuple(weights[name].shape)} in {source}, {tuple(own[name].shape)} here"
+              for name in own if name in weights and weights[name].shape != own[name].shape]
+    differ += [f"{name}: absent from {source}" for name in own if name not in weights]
+    differ += [f"{name}: in {source}, absent here" for name in weights if name not in own]
+    if differ:
+        shown = differ[:8] + ([f"... and {len(differ) - 8} more"] if len(differ) > 8 else [])
+        raise ckpt.CheckpointError(f"the networks of {source} differ from this agent's:\n  " + "\n  ".join(shown))
+    module.load_state_dict(weights)
+
+
+def _describe_specs(env) -> str:
+    """``observations {key: shape}, actions shape`` of an env, for error messages."""
+    shapes = {key: tuple(spec.shape) for key, spec in env.observation_spec.items(True, True)}
+    return f"observations {shapes}, actions {tuple(env.action_spec.shape)}"

@@ -7,6 +7,7 @@ message naming the file; :func:`find_resumable` picks the newest complete checkp
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import random
@@ -48,23 +49,44 @@ def write_checkpoint(path: Path, state: dict, replay_buffer=None) -> Path:
     The folder is written as ``.NAME.tmp`` and renamed into place; the previous one is moved to ``.NAME.old``
     meanwhile. A crash at any point leaves a complete checkpoint under one of the three names, which
     :func:`find_resumable` finds.
+
+    Raises:
+        CheckpointError: the write failed (a full disk, most often): the message names the folder and its free
+            space; the partial ``.NAME.tmp`` is removed and the previous checkpoint kept.
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
     old = path.with_name(f".{path.name}.old")
     shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    torch.save(state, tmp / STATE_FILE)
-    if replay_buffer is not None:
-        replay_buffer.dumps(tmp / REPLAY_DIR)
-    manifest = {"episodes": state.get("counters", {}).get("episodes"), "files": folder_manifest(tmp)}
-    (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
+    try:
+        tmp.mkdir(parents=True)
+        torch.save(state, tmp / STATE_FILE)
+        if replay_buffer is not None:
+            replay_buffer.dumps(tmp / REPLAY_DIR)
+        manifest = {"episodes": state.get("counters", {}).get("episodes"), "files": folder_manifest(tmp)}
+        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
+    except (OSError, RuntimeError) as error:  # torch.save reports a full disk as a RuntimeError
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise CheckpointError(_write_failure(path, error)) from error
     shutil.rmtree(old, ignore_errors=True)
     if path.exists():
         os.replace(path, old)
     os.replace(tmp, path)
     shutil.rmtree(old, ignore_errors=True)
     return path
+
+
+def _write_failure(path: Path, error: BaseException) -> str:
+    """Why writing the checkpoint ``path`` failed, with the free space of its device (a full disk is the usual cause)."""
+    try:
+        free = f"{shutil.disk_usage(path.parent).free / 2**20:.1f} MiB free"
+    except OSError:
+        free = "free space unknown"
+    full = getattr(error, "errno", None) == errno.ENOSPC or "unexpected pos" in str(error) or "write failed" in str(error)
+    cause = "the disk is full" if full else "writing failed"
+    kept = "the previous checkpoint is kept" if path.exists() else "no earlier checkpoint of this name exists"
+    return (f"cannot write checkpoint {path}: {cause} ({type(error).__name__}: {error}; {path.parent} has {free}); "
+            f"the partial checkpoint was removed and {kept}")
 
 
 def read_manifest(path: Path) -> dict | None:
@@ -96,7 +118,8 @@ def _verify(path: Path, prefix: str) -> None:
 
 
 def read_checkpoint(path: Path) -> dict:
-    """Loads ``state.pt`` from a checkpoint folder (or a ``.pt`` file) after checking it against the manifest.
+    """Loads ``state.pt`` from a checkpoint folder (or a ``.pt`` file) after checking it against the manifest
+    (a file inside a checkpoint folder is checked against the folder's manifest too).
 
     Raises:
         CheckpointError: the checkpoint is missing, truncated or corrupted (the message names the file).
@@ -109,6 +132,8 @@ def read_checkpoint(path: Path) -> dict:
         file = path
         if not file.exists():
             raise CheckpointError(f"no checkpoint at {path} (expected a folder with {STATE_FILE} or a .pt file)")
+        if (file.parent / MANIFEST_FILE).exists():  # a file of a checkpoint folder: checked as the folder is
+            _verify(file.parent, file.name)
     try:
         return torch.load(file, map_location="cpu", weights_only=False)
     except Exception as error:  # torch.load raises EOFError, RuntimeError, UnpicklingError... on damaged files
@@ -193,12 +218,14 @@ def _flatten(config: dict) -> dict[str, object]:
             for name, value in values.items()}
 
 
-def check_compatible(saved: dict, current: dict, source: Path) -> None:
-    """Raises :class:`CheckpointError` naming every :data:`NETWORK_FIELDS` field where ``saved`` and ``current`` differ."""
+def check_compatible(saved: dict, current: dict, source: Path, ignore: tuple[str, ...] = ()) -> None:
+    """Raises :class:`CheckpointError` naming every :data:`NETWORK_FIELDS` field (but those in ``ignore``) where
+    ``saved`` and ``current`` differ."""
     saved, current = _flatten(saved), _flatten(current)
 
     def shapes_networks(name: str) -> bool:
-        return any(name == f or (f.endswith(".*") and name.startswith(f[:-1])) for f in NETWORK_FIELDS)
+        return name not in ignore and any(name == f or (f.endswith(".*") and name.startswith(f[:-1]))
+                                          for f in NETWORK_FIELDS)
 
     differ = [f"{name}: {saved.get(name)!r} in the checkpoint, {current.get(name)!r} now"
               for name in sorted(set(saved) | set(current)) if shapes_networks(name) and saved.get(name) != current.get(name)]

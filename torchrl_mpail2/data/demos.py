@@ -21,6 +21,8 @@ Episodes are stored one after the other, each with its final next-observation, s
 """
 from __future__ import annotations
 
+import hashlib
+
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -117,6 +119,15 @@ class Demonstrations:
     @property
     def env_id(self) -> str:
         return self.header["env_id"]
+
+    def content_digest(self) -> str:
+        """sha256 (hex) of the observations, every key's values in key order: a run records it so that a resume
+        notices demonstrations replaced between launches."""
+        digest = hashlib.sha256()
+        for key in sorted(self.observations.keys(True, True), key=str):
+            digest.update(str(key).encode())
+            digest.update(self.observations.get(key).detach().cpu().contiguous().view(-1).view(torch.uint8).numpy())
+        return digest.hexdigest()
 
     @property
     def observation_keys(self) -> list:

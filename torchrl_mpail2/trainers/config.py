@@ -152,6 +152,9 @@ class TrainConfig:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         if self.warmup_episodes >= self.total_episodes:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
+        if self.num_envs > self.total_episodes:
+            raise ConfigError(f"TrainConfig.num_envs={self.num_envs} is more than total_episodes={self.total_episodes}: "
+                              "the run could not use the extra environments (each collects whole episodes)")
         if self.eval_acting not in ACTING:
             raise ConfigError(f"unknown TrainConfig.eval_acting {self.eval_acting!r}; choose from {sorted(ACTING)}")
         if self.update_precision not in UPDATE_PRECISIONS:

@@ -73,6 +73,10 @@ class RunLogger:
 
             self.logger.experiment.log({"eval/video": wandb.Video(str(path), format="mp4")}, step=step)
 
+    def eval_at(self, episode: int) -> dict | None:
+        """The evaluation ``eval.jsonl`` holds at ``episode`` (None if there is none)."""
+        return next((r for r in read_jsonl(self.run_dir / EVAL_FILE) if r.get("episode") == episode), None)
+
     def success_rate(self, window: int) -> float:
         recent = self.successes[-window:]
         return sum(recent) / len(recent) if recent else 0.0

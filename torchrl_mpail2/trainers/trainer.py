@@ -6,6 +6,7 @@ import functools
 import json
 import logging
 import math
+import os
 import shutil
 import time
 import warnings
@@ -20,6 +21,7 @@ from torchrl.data.replay_buffers import SliceSampler
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.config import ConfigError
 from torchrl_mpail2.data import TRAJ_KEY, AttachExpertWindows, DemoBuffer, Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.envs.keys import observation_keys_of
@@ -33,6 +35,7 @@ from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.plots import plot_run
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
+from torchrl_mpail2.trainers.stop_signals import StopOnSignal
 from torchrl_mpail2.trainers.videos import check_can_film, write_videos
 
 log = logging.getLogger(__name__)
@@ -86,6 +89,9 @@ class MPAIL2Trainer:
             env_fn = functools.partial(make_env, t.env, obs=t.obs, device=t.device, **(t.env_kwargs or {}))
         self.env_fn = env_fn
         self.run_dir = Path(t.run_dir)
+        if t.parallel_envs and t.num_envs > (os.cpu_count() or 1):
+            warnings.warn(f"train.num_envs={t.num_envs} worker processes (train.parallel_envs) on {os.cpu_count()} "
+                          "cores: they will take turns, and starting them takes long", RuntimeWarning, stacklevel=3)
         self.env = env_fn(seed=t.seed)
         if t.video:
             check_can_film(self.env)
@@ -190,7 +196,12 @@ class MPAIL2Trainer:
     def state_dict(self) -> dict:
         return {**self.agent.state_dict(), "demo_rng": self.demo_buffer.generator.get_state(), "rng": ckpt.rng_state(),
                 "counters": dict(self.counters), "best_eval": self.best_eval, "config": self.cfg.to_dict(),
-                "run_wall_s": self.run_wall_s()}
+                "run_wall_s": self.run_wall_s(), "demos_sha256": self.demos_digest}
+
+    @functools.cached_property
+    def demos_digest(self) -> str:
+        """sha256 of the demonstrations' observations (:meth:`Demonstrations.content_digest`), kept in checkpoints."""
+        return self.demos.content_digest()
 
     def run_wall_s(self) -> float:
         """Wall seconds the run has trained over all its launches: the earlier ones up to the checkpoint this
@@ -204,15 +215,29 @@ class MPAIL2Trainer:
         return ckpt.write_checkpoint(self.run_dir / "checkpoints" / tag, self.state_dict(),
                                      self.replay if with_replay else None)
 
-    def load(self, path: str | Path, with_replay: bool = True) -> None:
+    def load(self, path: str | Path, with_replay: bool = True, allow_other_demos: bool = False) -> None:
         """Restores everything a checkpoint holds (the replay buffer too, when present and asked for).
 
+        Args:
+            path: the checkpoint folder.
+            with_replay (bool): restore the stored replay buffer too. Defaults to True.
+            allow_other_demos (bool): go on with demonstrations other than those the checkpoint was trained on
+                (their sha256 is kept in the checkpoint). Defaults to False.
+
         Raises:
-            CheckpointError: the checkpoint is missing, truncated or corrupted, or was written for other
-                networks (the message names the file, or the config fields that differ).
+            CheckpointError: the checkpoint is missing, truncated or corrupted, was written for other
+                networks (the message names the file, or the config fields that differ), or was trained on other
+                demonstrations than this run holds (unless ``allow_other_demos``).
         """
         state = ckpt.read_checkpoint(path)
         ckpt.check_compatible(state["config"], self.cfg.to_dict(), Path(path))
+        saved_demos = state.get("demos_sha256")  # older checkpoints did not record it
+        if saved_demos is not None and saved_demos != self.demos_digest and not allow_other_demos:
+            source = self.cfg.train.demos or "the demonstrations recorded for this run"
+            raise ckpt.CheckpointError(
+                f"{path} was trained on other demonstrations than {source} holds now (sha256 {saved_demos[:12]}... "
+                f"then, {self.demos_digest[:12]}... now): were they replaced? Resume with --allow-other-demos "
+                "(MPAIL2Trainer.resume(..., allow_other_demos=True)) to go on with these")
         self.agent.load_state_dict(state)
         self.demo_buffer.generator.set_state(state["demo_rng"])
         ckpt.set_rng_state(state["rng"])
@@ -225,18 +250,32 @@ class MPAIL2Trainer:
             ckpt.load_replay(self.replay, path)
 
     def init_from(self, path: str | Path, transfer: str = "all") -> None:
-        """Copies weights of another run's checkpoint (:meth:`MPAIL2Agent.transfer_from`)."""
-        self.agent.transfer_from(path, transfer)
+        """Copies weights of another run's checkpoint (:meth:`MPAIL2Agent.transfer_from`), before the first episode.
+
+        Raises:
+            CheckpointError: the checkpoint is damaged or was written for other networks (the message names the
+                config fields or parameters that differ); the run folder is then discarded as a failed start.
+        """
+        if self.counters["episodes"]:
+            raise ValueError(f"init_from({path!s}) after {self.counters['episodes']} episodes: weights are "
+                             "transferred before training starts, not into a run under way")
+        try:
+            self.agent.transfer_from(path, transfer, config=self.cfg.to_dict())
+        except BaseException:
+            self.run_folder.discard()  # a run that fails to start leaves nothing behind
+            raise
 
     @classmethod
-    def resume(cls, run_dir: str | Path, overrides: list[str] | Mapping[str, Any] | None = None,
-               **kwargs) -> "MPAIL2Trainer":
+    def resume(cls, run_dir: str | Path, overrides: list[str] | Mapping[str, Any] | None = None, *,
+               allow_other_demos: bool = False, **kwargs) -> "MPAIL2Trainer":
         """Rebuilds a run from its ``config.json`` and continues from its newest complete checkpoint.
 
         That is ``checkpoints/last`` unless a crash left it missing or damaged (see
         :func:`~torchrl_mpail2.data.checkpoint.find_resumable`); a run killed before its first checkpoint
         starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.trainers.config.RESUME_FIELDS`,
-        e.g. ``["train.total_episodes=400"]`` or ``{"train.total_episodes": 400}`` to extend a finished run.
+        e.g. ``["train.total_episodes=400"]`` or ``{"train.total_episodes": 400}`` to extend a finished run
+        (:meth:`train` on a finished run changes nothing). Demonstrations other than those the checkpoint was
+        trained on are refused unless ``allow_other_demos``.
         """
         run_dir = Path(run_dir)
         cfg = apply_resume_overrides(read_run_config(run_dir), overrides or [])
@@ -246,10 +285,12 @@ class MPAIL2Trainer:
             if checkpoint is None:
                 warnings.warn(f"{run_dir} holds no checkpoint yet: the run starts over", RuntimeWarning, stacklevel=2)
             else:
-                trainer.load(checkpoint)
-            if cfg.train.total_episodes < trainer.counters["episodes"]:
-                raise ValueError(f"train.total_episodes={cfg.train.total_episodes} is below the "
-                                 f"{trainer.counters['episodes']} episodes {run_dir} already ran")
+                done = ckpt.checkpoint_episodes(checkpoint)
+                if cfg.train.total_episodes < done:  # before the replay is loaded into a smaller buffer
+                    raise ConfigError(f"train.total_episodes={cfg.train.total_episodes}: {run_dir} has already run "
+                                      f"{done} episodes (checkpoint {checkpoint.name}); a budget cannot go below "
+                                      "them (a larger one extends the run)")
+                trainer.load(checkpoint, allow_other_demos=allow_other_demos)
             trainer.logger.truncate_after(trainer.counters["episodes"])
         except BaseException:
             trainer.close()
@@ -303,15 +344,34 @@ class MPAIL2Trainer:
     def train(self) -> dict:
         """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time).
 
-        The run folder is locked meanwhile (released when training ends, by an error too).
+        The run folder is locked meanwhile (released when training ends, by an error too). A resumed run that
+        has already finished changes nothing: a warning says how to extend it, and its summary is returned.
         """
+        finished = self._finished_summary()
+        if finished is not None:
+            return finished
         self.run_folder.acquire()
         try:
             return self._train()
         finally:
             self.close()
 
+    def _finished_summary(self) -> dict | None:
+        """The stored summary of a run that has already done its ``total_episodes`` (None for one to go on)."""
+        t, done = self.cfg.train, self.counters["episodes"]
+        summary = self.run_dir / "summary.json"
+        if done < t.total_episodes or not summary.exists():
+            return None
+        warnings.warn(f"{self.run_dir} has already finished its {done} episodes: nothing to do. Extend it with "
+                      f"--resume {self.run_dir} train.total_episodes=N (N > {done})", RuntimeWarning, stacklevel=3)
+        return json.loads(summary.read_text())
+
     def _train(self) -> dict:
+        with StopOnSignal() as stop:
+            return self._train_until(stop)
+
+    def _train_until(self, stop: StopOnSignal) -> dict:
+        """The loop; it ends at ``total_episodes``, at the wall-clock budget or at a stop signal (``stop``)."""
         t = self.cfg.train
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start, evaluation, state = time.perf_counter(), None, {}
@@ -320,6 +380,8 @@ class MPAIL2Trainer:
             while self.counters["episodes"] < t.total_episodes:
                 if t.max_wall_s is not None and time.perf_counter() - start > t.max_wall_s:
                     log.warning("stopping at the wall-clock budget of %.0f s", t.max_wall_s)
+                    break
+                if stop.requested:
                     break
                 # the first step of an episode may already be in flight when the previous one is yielded
                 self.agent.actor.random_actions = self.counters["episodes"] < t.warmup_episodes
@@ -362,8 +424,10 @@ class MPAIL2Trainer:
             bar.close()
             if state.get("collector") is not None:
                 state["collector"].shutdown()
-        if t.eval_every and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
-            evaluation = self._evaluate_and_checkpoint()  # stopped early: evaluate where it stopped
+        # after a stop signal: no evaluation, the checkpoint only (a second signal stops at once)
+        if t.eval_every and not stop.requested and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
+            # stopped early: evaluate where it stopped, unless a launch before this one did
+            evaluation = self.logger.eval_at(self.counters["episodes"]) or self._evaluate_and_checkpoint()
         tick = time.perf_counter()
         if self._last_written != self.counters["episodes"]:
             self.save("last", with_replay=True)
@@ -375,7 +439,7 @@ class MPAIL2Trainer:
                    "run_wall_time_s": self.run_wall_s(),
                    "best_eval_success_any_step": self.best_eval[0] if self.best_eval[0] > -math.inf else None,
                    "best_eval_success": self.best_eval[1] if self.best_eval[0] > -math.inf else None,
-                   "last_eval": evaluation,
+                   "last_eval": evaluation, "stopped_by": stop.requested,
                    "time_split_s": {**self.time_split, "total": time.perf_counter() - start}}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         self._earlier_wall_s, self._launch_start = summary["run_wall_time_s"], None  # a later train() adds to it
