@@ -224,8 +224,22 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
                     "mean_update_ms": statistics.fmean([e["update_ms"] for e in d["episodes"] if "update_ms" in e] or [0]),
                     "time_split": d["time_split_s"], "all_checkpoints": d["all_checkpoints"]}
                 for s, d in seeds.items()}
-    config = next(iter(seeds.values()))["config"]
+    config = portable_config(next(iter(seeds.values()))["config"], runs_root)
     return _write_result(name, config, per_seed, git_commit(runs_root, short=False))
+
+
+def portable_config(config: dict, runs_root: Path) -> dict:
+    """``config`` with the paths a run saves resolved (``train.run_dir``, ``train.demos``) made relative to the
+    worktree holding ``runs_root`` (its parent's parent: ``<worktree>/runs/learning``), or to ``<elsewhere>/NAME``:
+    results pages must not carry one machine's folders."""
+    root = Path(runs_root).resolve().parent.parent
+    train = dict(config["train"])
+    for key in ("run_dir", "demos"):
+        value = train.get(key)
+        if isinstance(value, str) and Path(value).is_absolute():
+            path = Path(value)
+            train[key] = str(path.relative_to(root)) if path.is_relative_to(root) else f"<elsewhere>/{path.name}"
+    return {**config, "train": train}
 
 
 def all_checkpoints(run_dir: Path, train: dict) -> dict | None:

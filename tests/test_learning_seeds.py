@@ -277,3 +277,16 @@ def test_bootstrap_interval_and_iqm_by_hand():
     assert iqm([0.3, 0.9]) is None
     with pytest.raises(ValueError, match="at least one seed"):
         bootstrap_ci([[1.0], []])
+
+
+def test_the_summary_keeps_no_absolute_paths_of_this_machine(bench, tmp_path):
+    runs = tmp_path / "worktree" / "runs" / "learning"
+    _fake_seed(runs, 0, [(50, 0.4, 0.2)])
+    config_file = runs / "demo" / "seed0" / "config.json"
+    config = json.loads(config_file.read_text())
+    config["train"].update(run_dir=str(runs / "demo" / "seed0"), demos="/somewhere/else/demos_pm")
+    config_file.write_text(json.dumps(config))
+    r = bench.summarize("demo", runs)
+    assert r["config"]["train"]["run_dir"] == "runs/learning/demo/seed0"
+    assert r["config"]["train"]["demos"] == "<elsewhere>/demos_pm"
+    assert str(tmp_path) not in (tmp_path / "results" / "demo.json").read_text()
