@@ -241,6 +241,47 @@ def test_cli_lift_speed_is_lift_only(tmp_path):
     assert not (tmp_path / "pm").exists()
 
 
+def test_cli_record_takes_a_preset_and_env_kwargs_and_records_them(tmp_path, capsys):
+    out = tmp_path / "pm"
+    assert demos_cli.main(["record", "--preset", "point_mass", "--env-kwargs", '{"horizon": 10}', "--episodes", "1",
+                           "--out", str(out), "--no-progress"]) == 0
+    assert "env: point_mass {'obs': 'state', 'horizon': 10}" in capsys.readouterr().out
+    demos = load_demos(out)
+    assert demos.env_id == "point_mass" and demos.header["env_kwargs"] == {"obs": "state", "horizon": 10}
+    assert demos.episode_lengths == [10]  # the option reached the env
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--env-kwargs", "{horizon: 10}"], "not JSON"),
+    (["--env-kwargs", "[10]"], "expected a JSON object"),
+    (["--env-kwargs", '{"obs": "pixels"}'], "with --obs"),
+])
+def test_cli_bad_env_kwargs_exit_with_status_2_naming_the_fault(tmp_path, capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_info:
+        demos_cli.main(["record", "--env", "point_mass", *argv, "--out", str(tmp_path / "pm")])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_cli_without_env_or_preset_says_so(tmp_path):
+    with pytest.raises(SystemExit, match="--env, or a training preset with --preset"):
+        demos_cli.main(["record", "--out", str(tmp_path / "pm")])
+
+
+def test_a_spec_mismatch_names_the_env_option_that_differs(point_mass_demos, tmp_path):
+    demos = point_mass_demos.with_keys(["observation"])
+    demos.header["env_kwargs"] = {"obs": "state", "horizon": 50}
+    path = save_demos(demos, tmp_path / "demos")
+    pixels = make_env("point_mass", obs="pixels")
+    with pytest.raises(ValueError, match=r"keys missing from the demos \['external_image'\].*The env option that "
+                                         r"likely differs: obs \(demos: state, env: pixels\)"):
+        load_demos(path, pixels, env_kwargs={"obs": "pixels", "horizon": 50})
+    with pytest.raises(ValueError, match=r"The demos were made with the env options \{'obs': 'state', 'horizon': 50\}"):
+        load_demos(path, pixels)  # the env's options unknown: the demos' are shown
+    demos.header["env_kwargs"] = {}  # recorded by nobody: no hint
+    with pytest.raises(ValueError, match=r"extra keys in the demos \['observation'\]\.$"):
+        load_demos(save_demos(demos, tmp_path / "unrecorded"), pixels, env_kwargs={"obs": "pixels"})
+
+
 def test_recordings_end_steps_after_the_first_success():
     env = make_env("point_mass")
     full = record_demos(env, PointMassExpert(), episodes=2, progress=False, seed=4)

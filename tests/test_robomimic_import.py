@@ -204,3 +204,24 @@ def test_a_demo_with_empty_rewards_is_imported_with_its_success_unrecorded(tmp_p
     with pytest.warns(RuntimeWarning, match=r"edited\.hdf5: demo_2/rewards is missing or empty"):
         demos = import_robomimic(copy, lift_state_env)
     assert demos.num_episodes == 2 and np.isnan(demos.success_rate)
+
+
+def test_the_command_line_imports_one_split_with_filter_key(tmp_path, lift_state_env):
+    from torchrl_mpail2.demos import main
+
+    split = tmp_path / "split.hdf5"
+    shutil.copy(LOW_DIM, split)
+    with h5py.File(split, "r+") as f:
+        f["mask"].create_dataset("second", data=np.array([b"demo_2"]))
+    out = tmp_path / "second"
+    assert main(["import", "robomimic", str(split), "--env", "robosuite/Lift", "--filter-key", "second",
+                 "--out", str(out), "--no-progress"]) == 0
+    saved = load_demos(out, lift_state_env)
+    assert saved.num_episodes == 1
+    assert saved.header["source"]["demos"] == ["demo_2"] and saved.header["source"]["filter_key"] == "second"
+    with pytest.raises(ValueError, match="no filter key 'valdiation' under 'mask'"):
+        main(["import", "robomimic", str(split), "--env", "robosuite/Lift", "--filter-key", "valdiation",
+              "--out", str(tmp_path / "typo"), "--no-progress"])
+    with pytest.raises(SystemExit, match="--filter-key applies to robomimic files only, not ted"):
+        main(["import", "ted", str(tmp_path), "--env", "point_mass", "--filter-key", "train",
+              "--out", str(tmp_path / "ted")])

@@ -3,13 +3,14 @@ gather_demonstrations_as_hdf5, imported by replaying their states through this l
 by hand in the same layout."""
 import json
 import os
+import warnings
 
 import h5py
 import numpy as np
 import pytest
 import torch
 
-from torchrl_mpail2.data import load_demo_source, save_demos
+from torchrl_mpail2.data import load_demo_source, load_demos, save_demos
 from torchrl_mpail2.data.robosuite_hdf5 import import_robosuite_hdf5
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv, robosuite_base
@@ -212,3 +213,48 @@ def test_states_with_nan_or_of_another_width_are_refused_naming_the_demo(tmp_pat
     with pytest.raises(ValueError, match=rf"narrow\.hdf5: demo_1/states are 20 wide, the flattened mujoco state of "
                                          rf"its model_file is {state.size} wide"):
         import_robosuite_hdf5(_hand_written(tmp_path / "narrow.hdf5", xml, states[:, :20]), env, progress=False)
+
+
+def test_a_file_without_control_freq_warns_naming_it(tmp_path, lift_and_state):
+    """robosuite's collect_human_demonstrations records no control_freq in env_info: the rate cannot be checked."""
+    from torchrl_mpail2.envs.robosuite_control import CONTROL_FREQ_HZ
+
+    env, xml, state = lift_and_state
+    states = np.stack([state] * 3)
+    with pytest.warns(RuntimeWarning, match=r"no_rate\.hdf5: env_info records no control_freq, so the control rate "
+                                            rf"could not be checked: .* at the env's {CONTROL_FREQ_HZ} Hz"):
+        import_robosuite_hdf5(_hand_written(tmp_path / "no_rate.hdf5", xml, states), env, progress=False)
+    rated = _hand_written(tmp_path / "rated.hdf5", xml, states,
+                          env_info=json.dumps({"env_name": "Lift", "control_freq": CONTROL_FREQ_HZ}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        import_robosuite_hdf5(rated, env, progress=False)
+
+
+def test_an_import_with_a_presets_env_options_trains_with_it_and_a_mismatch_names_the_option(tmp_path, lift_and_state):
+    """``demos import --preset lift_state`` replays through the preset's env (the gripper command observed, 27
+    proprioception values) and records its options; demos imported without them are refused by the run of that
+    preset naming the option."""
+    from torchrl_mpail2.demos import main
+    from torchrl_mpail2.trainers import preset
+    from torchrl_mpail2.trainers.run_demos import load_or_record_demos
+
+    _, xml, state = lift_and_state
+    path = _hand_written(tmp_path / "demo.hdf5", xml, np.stack([state] * 3))
+    common = ["import", "robosuite_hdf5", str(path), "--no-progress", "--out"]
+    with pytest.warns(RuntimeWarning, match="control_freq"):
+        assert main([*common, str(tmp_path / "plain"), "--env", "robosuite/Lift"]) == 0
+        assert main([*common, str(tmp_path / "lift_state"), "--preset", "lift_state"]) == 0
+        assert main([*common, str(tmp_path / "explicit"), "--preset", "lift_state",
+                     "--env-kwargs", '{"observe_gripper_command": false}']) == 0
+    cfg = preset("lift_state")
+    env = make_env(cfg.train.env, obs=cfg.train.obs, **cfg.train.env_kwargs)
+    cfg.train.demos = str(tmp_path / "lift_state")
+    demos = load_or_record_demos(cfg, env, env_fn=None)
+    assert demos.observations["proprio"].shape[-1] == 27
+    assert demos.header["env_kwargs"] == {"obs": "state", "observe_gripper_command": True}
+    assert load_demos(tmp_path / "explicit").header["env_kwargs"] == {"obs": "state", "observe_gripper_command": False}
+    cfg.train.demos = str(tmp_path / "plain")
+    with pytest.raises(ValueError, match=r"'proprio' has shape \(26,\) in the demonstrations but \(27,\) .* likely "
+                                         r"differs: observe_gripper_command \(demos: not set, env: True\)"):
+        load_or_record_demos(cfg, env, env_fn=None)

@@ -109,3 +109,31 @@ def test_ted_data_without_transitions_is_refused_naming_the_folder(tmp_path):
     synthetic_ted(lengths=(0,)).memmap(tmp_path / "empty_ted")
     with pytest.raises(ValueError, match=r"TED data .*empty_ted holds no transitions"):
         load_demo_source(f"ted:{tmp_path / 'empty_ted'}", make_env("point_mass"))
+
+
+def test_an_episode_id_that_comes_back_later_starts_a_new_episode():
+    """Two saved batches whose ids both start at 0 (TorchRL's ``split_trajectories`` counts every transition of an
+    id and fails on them): an episode is a run of one id, as TorchRL's ``SliceSampler`` reads its storage."""
+    data = torch.cat([synthetic_ted(lengths=(3, 2)), synthetic_ted(lengths=(2,))])
+    assert data["episode"].tolist() == [0, 0, 0, 1, 1, 0, 0]
+    demos = demos_from_ted(data, ["observation"])
+    assert demos.episode_lengths == [3, 2, 2]
+    assert torch.equal(demos.episode(2)["observation"][0], data["observation"][5])
+
+
+def test_the_success_after_each_episodes_last_transition_is_kept(tmp_path, capsys):
+    from torchrl_mpail2.demos import main
+
+    data = synthetic_ted(lengths=(4, 4, 4))
+    success = torch.zeros(12, 1, dtype=torch.bool)
+    success[3] = True  # episode 0 ends at the goal
+    success[5] = True  # episode 1 passes through it and leaves: not a success at its last step
+    data["next", "success"] = success
+    demos = demos_from_ted(data, ["observation"])
+    assert [meta["success"] for meta in demos.header["episodes"]] == [True, False, False]
+    assert demos.success_rate == pytest.approx(1 / 3)
+    assert demos_from_ted(data.exclude(("next", "success")), ["observation"]).header["episodes"][0]["success"] is None
+    data.memmap(tmp_path / "ted")
+    assert main(["import", "ted", str(tmp_path / "ted"), "--env", "point_mass", "--out", str(tmp_path / "demos"),
+                 "--no-progress"]) == 0
+    assert "success rate: 0.333" in capsys.readouterr().out

@@ -21,7 +21,7 @@ from torchrl_mpail2.data.demos import (
 )
 from torchrl_mpail2.envs.keys import observation_keys_of
 
-__all__ = ["check_observation_spec", "load_demos", "save_demos"]
+__all__ = ["check_observation_spec", "env_options_hint", "load_demos", "save_demos"]
 
 
 def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False) -> Path:
@@ -110,14 +110,49 @@ def _check_contents(observations: TensorDict, header: dict) -> None:
         raise DemoFormatError("The episode/step index arrays disagree with the header; data is corrupted.")
 
 
+#: Shown for an env option a header or an env does not set (the env's default applies).
+_UNSET = "not set"
+
+
+def env_options_hint(recorded: dict | None, env_kwargs: dict | None) -> str:
+    """A sentence naming the env options (``make_env`` arguments, ``obs`` included) that differ between the options
+    the demonstrations were made with (``recorded``, their header's ``env_kwargs``) and the env's (``env_kwargs``);
+    the demos' options alone where the env's are unknown, and ``""`` where the header records none or none differ.
+
+    Examples:
+        >>> env_options_hint({"obs": "state"}, {"obs": "state", "observe_gripper_command": True}).split(";")[0]
+        ' The env option that likely differs: observe_gripper_command (demos: not set, env: True)'
+        >>> env_options_hint({}, {"obs": "state"})
+        ''
+    """
+    if not recorded:
+        return ""
+    if env_kwargs is None:
+        return f" The demos were made with the env options {recorded}."
+    differing = [name for name in sorted({*recorded, *env_kwargs})
+                 if recorded.get(name, _UNSET) != env_kwargs.get(name, _UNSET)]
+    if not differing:
+        return ""
+    listed = ", ".join(f"{name} (demos: {recorded.get(name, _UNSET)}, env: {env_kwargs.get(name, _UNSET)})"
+                       for name in differing)
+    options = "option that likely differs" if len(differing) == 1 else "options that likely differ"
+    return (f" The env {options}: {listed}; make the demos with the env's options "
+            "(demos import/record --preset NAME or --env-kwargs JSON).")
+
+
 def check_observation_spec(demos: Demonstrations, observation_spec: Composite | EnvBase,
-                           keys: Sequence[str] | None = None) -> None:
+                           keys: Sequence[str] | None = None, *, env_kwargs: dict | None = None) -> None:
     """Raises ``ValueError`` if the demos' observation keys or shapes differ from an env's spec.
 
     The keys compared are those of :func:`~torchrl_mpail2.envs.keys.observation_keys_of` (pass the env
     rather than its spec so that its own bookkeeping transforms are recognised), or ``keys`` (some of them: the
     demos must hold those and may lack the others, as video-only demonstrations do); batch dimensions of the
     spec are stripped before shapes are compared.
+
+    Keyword Args:
+        env_kwargs (dict, optional): the options the env was built with (``{"obs": ..., **make_env kwargs}``). Where
+            the demos' header records its own (``env_kwargs``), the error names the options that differ
+            (:func:`env_options_hint`).
     """
     spec_keys = observation_keys_of(observation_spec)
     if keys is not None:
@@ -127,13 +162,14 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite | 
         spec_keys = [key for key in spec_keys if key in keys]
     if isinstance(observation_spec, EnvBase):
         observation_spec = observation_spec.observation_spec
+    hint = env_options_hint(demos.header.get("env_kwargs"), env_kwargs)
     demo_keys = demos.observation_keys
     missing = [key for key in spec_keys if key not in demo_keys]
     extra = [key for key in demo_keys if key not in spec_keys and key not in (keys or ())]
     if missing or extra:
         raise ValueError(
             f"Demonstrations ({demos.env_id}) do not match the observation spec: "
-            f"keys missing from the demos {missing}, extra keys in the demos {extra}."
+            f"keys missing from the demos {missing}, extra keys in the demos {extra}.{hint}"
         )
     batch_dims = len(observation_spec.shape)
     for key in spec_keys:
@@ -141,17 +177,18 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite | 
         stored = tuple(demos.observations.get(key).shape[1:])
         if expected != stored:
             raise ValueError(
-                f"Observation key {key!r} has shape {stored} in the demonstrations but {expected} in the observation spec."
+                f"Observation key {key!r} has shape {stored} in the demonstrations but {expected} in the observation "
+                f"spec.{hint}"
             )
         if observation_spec[key].dtype != demos.observations.get(key).dtype:
             raise ValueError(
                 f"Observation key {key!r} has dtype {demos.observations.get(key).dtype} in the demonstrations "
-                f"but {observation_spec[key].dtype} in the observation spec."
+                f"but {observation_spec[key].dtype} in the observation spec.{hint}"
             )
 
 
 def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = None, verify: bool = True,
-               keys: Sequence[str] | None = None) -> Demonstrations:
+               keys: Sequence[str] | None = None, *, env_kwargs: dict | None = None) -> Demonstrations:
     """Loads and validates demonstrations written by :func:`save_demos`.
 
     Every stored file is checked against the byte size and sha256 recorded in the header before
@@ -166,10 +203,15 @@ def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = 
         keys (Sequence[str], optional): keep only these observation keys, which the demos must hold; the spec's
             other keys may be missing (``train.demo_keys``: video-only demonstrations).
 
+    Keyword Args:
+        env_kwargs (dict, optional): the options the env of ``observation_spec`` was built with, so that a mismatch
+            names the options that differ from those in the demos' header (:func:`check_observation_spec`).
+
     Raises:
         DemoFormatError: missing/invalid header, unknown format version, truncated or corrupted files, NaN or Inf
             in an observation (the message names the key and the episodes).
-        ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes).
+        ValueError: keys or shapes differ from ``observation_spec`` (the message names the key and both shapes,
+            and the env options that differ where both are known).
     """
     path = Path(path)
     header = _read_header(path)
@@ -186,5 +228,5 @@ def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = 
     if keys is not None:
         demos = demos.with_keys(keys)
     if observation_spec is not None:
-        check_observation_spec(demos, observation_spec, keys)
+        check_observation_spec(demos, observation_spec, keys, env_kwargs=env_kwargs)
     return demos

@@ -10,6 +10,7 @@ advance the gripper command where the env observes it; they and any rewards are 
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +81,10 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
         ValueError: the file is not a robosuite recording (the missing group, attribute or dataset is named), is
             truncated, has an ``env_info`` that is not JSON, was recorded on another task or at another control
             rate than ``env``'s, or a demo's states are not finite or not as wide as its model's state.
+
+    Warns:
+        RuntimeWarning: the file's ``env_info`` records no ``control_freq`` (robosuite's own recordings do not), so
+            the control rate could not be checked; the file is named.
     """
     path = Path(path)
     if not path.is_file():
@@ -97,7 +102,11 @@ def import_robosuite_hdf5(path: str | Path, env, *, max_demos: int | None = None
             raise ValueError(f"{path} was recorded on robosuite task {task!r}, the env is {base.task!r}")
         env_info = json_attribute(path, data.attrs, "env_info", default={})
         recorded_hz = env_info.get(CONTROL_FREQ_FIELD)
-        if recorded_hz is not None and float(recorded_hz) != float(base.sim_env.control_freq):
+        if recorded_hz is None:  # robosuite's collect_human_demonstrations writes none
+            warnings.warn(f"{path}: env_info records no {CONTROL_FREQ_FIELD}, so the control rate could not be "
+                          f"checked: the recording is replayed as if made at the env's {base.sim_env.control_freq} "
+                          "Hz", RuntimeWarning, stacklevel=2)
+        elif float(recorded_hz) != float(base.sim_env.control_freq):
             raise ValueError(f"{path} was recorded at {recorded_hz} Hz ({CONTROL_FREQ_FIELD} in env_info), "
                              f"the env steps at {base.sim_env.control_freq} Hz")
         names = sorted_demo_names(data.keys())[:max_demos]

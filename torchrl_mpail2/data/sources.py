@@ -40,22 +40,37 @@ def resolve_demo_source(source: str | Path) -> str:
     return resolved if prefix is None else f"{prefix}:{resolved}"
 
 
-def load_demo_source(source: str | Path, env=None, *, progress: bool = False,
-                     keys: Sequence[str] | None = None) -> Demonstrations:
+def load_demo_source(source: str | Path, env=None, *, progress: bool = False, keys: Sequence[str] | None = None,
+                     env_kwargs: dict | None = None, importer_kwargs: dict | None = None) -> Demonstrations:
     """Demonstrations from ``source``: a demo folder (:func:`load_demos`), or ``<format>:<path>`` with a format
     of :data:`DEMO_SOURCES` (e.g. ``robosuite_hdf5:demo.hdf5``), imported through ``env`` and checked against its
-    observation spec. This is what ``train.demos=...`` accepts."""
+    observation spec. This is what ``train.demos=...`` accepts.
+
+    Keyword Args:
+        progress (bool): show the importer's progress bar.
+        keys (sequence of str, optional): keep only these observation keys (``train.demo_keys``).
+        env_kwargs (dict, optional): the options ``env`` was built with (``{"obs": ..., **make_env kwargs}``): an
+            import records them in its header (``env_kwargs``), and a mismatch with the env names the options that
+            differ from the header's (:func:`check_observation_spec`).
+        importer_kwargs (dict, optional): keyword arguments of the importer (e.g. ``{"filter_key": "train"}`` for
+            ``robomimic``); refused for a demo folder.
+    """
     text = str(source)
     prefix, path = _split(source)
     if prefix is None:
-        return load_demos(source, env, keys=keys)
+        if importer_kwargs:
+            raise ValueError(f"importer options {sorted(importer_kwargs)} apply to <format>:<path> sources, "
+                             f"not to the demo folder {text!r}")
+        return load_demos(source, env, keys=keys, env_kwargs=env_kwargs)
     if prefix not in DEMO_SOURCES:
         raise ValueError(f"unknown demonstration source prefix {prefix!r} in {text!r}; known: {sorted(DEMO_SOURCES)} "
                          "(or a demo folder path)")
     if env is None:
         raise ValueError(f"importing {text!r} needs the env to replay or check the observations")
-    demos = DEMO_SOURCES[prefix](path, env, progress=progress)
+    demos = DEMO_SOURCES[prefix](path, env, progress=progress, **(importer_kwargs or {}))
+    if env_kwargs is not None:
+        demos.header["env_kwargs"] = dict(env_kwargs)
     if keys is not None:
         demos = demos.with_keys(keys)
-    check_observation_spec(demos, env, keys)
+    check_observation_spec(demos, env, keys, env_kwargs=env_kwargs)
     return demos

@@ -4,7 +4,8 @@ r"""Observation-only demonstrations from TorchRL's TED format (the layout of its
 A TED batch holds transitions: observations at the root, the next ones under ``"next"``, and ``"action"``,
 ``("next", "reward")`` and done flags beside them. Episodes are told apart by an episode-id key (``"episode"`` in
 the datasets, ``("collector", "traj_ids")`` in collector output) or, without one, by ``("next", "done")``. Each
-episode of ``T`` transitions becomes its ``T + 1`` observations; actions and rewards are dropped.
+episode of ``T`` transitions becomes its ``T + 1`` observations; actions and rewards are dropped. Where the data
+holds ``("next", "success")``, each episode's success after its last transition is kept in the header.
 """
 from __future__ import annotations
 
@@ -16,29 +17,38 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
+from torchrl.data import find_start_stop_traj
 
 from torchrl_mpail2.data.demos import EPISODE_KEY, Demonstrations, _check_finite, demos_from_arrays
 from torchrl_mpail2.envs.keys import observation_keys_of
 
-__all__ = ["EPISODE_ID_KEYS", "demos_from_ted", "import_ted"]
+__all__ = ["EPISODE_ID_KEYS", "SUCCESS_KEY", "demos_from_ted", "import_ted"]
 
 #: Episode-id keys looked for, in order: TorchRL's datasets, its collectors, ``TrajCounter``'s default.
 EPISODE_ID_KEYS: tuple[NestedKey, ...] = ("episode", ("collector", "traj_ids"), "traj_count")
+#: The success flag after each transition, as this library's envs write it.
+SUCCESS_KEY: NestedKey = ("next", "success")
 
 
 def _episode_slices(data: TensorDictBase, episode_key: NestedKey | None) -> list[slice]:
-    """Consecutive runs of one episode id (or up to each ``("next", "done")``) as slices of the flat batch."""
+    """Consecutive runs of one episode id (or up to each ``("next", "done")``) as slices of the flat batch.
+
+    TorchRL's ``split_trajectories`` does not fit here: it pads every key into an ``[episodes, longest]`` copy (all
+    of a memory-mapped dataset's cameras in memory at once), and it sizes each episode by counting every transition
+    carrying its id, so an id that comes back later (two collector outputs saved one after the other) fails. The
+    boundaries are those of ``find_start_stop_traj``, the routine behind TorchRL's ``SliceSampler``: a new episode
+    wherever the id changes, or after each done flag, and the last transition always ends one.
+    """
     n = data.shape[0]
     if episode_key is not None:
-        ids = data.get(episode_key).reshape(n)
-        starts = [0, *(torch.nonzero(ids[1:] != ids[:-1]).flatten() + 1).tolist()]
+        boundaries = {"trajectory": data.get(episode_key).reshape(n)}
     else:
         done = data.get(("next", "done"), None)
         if done is None:
             return [slice(0, n)]
-        ends = (torch.nonzero(done.reshape(n)).flatten() + 1).tolist()
-        starts = [0, *[e for e in ends if e < n]]
-    return [slice(a, b) for a, b in zip(starts, [*starts[1:], n])]
+        boundaries = {"end": done.reshape(n).bool()}
+    start, stop, _ = find_start_stop_traj(**boundaries, at_capacity=False)
+    return [slice(a, b + 1) for a, b in zip(start[:, 0].tolist(), stop[:, 0].tolist())]
 
 
 def _observations_by_episode(data: TensorDictBase, observation_keys: Sequence[str],
@@ -52,7 +62,8 @@ def _observations_by_episode(data: TensorDictBase, observation_keys: Sequence[st
 
 def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env_id: str = "custom",
                    episode_key: NestedKey | None = None, source: str | None = None) -> Demonstrations:
-    """Groups a TED batch by episode into observation-only demonstrations.
+    """Groups a TED batch by episode into observation-only demonstrations, with each episode's success after its
+    last transition where the batch holds :data:`SUCCESS_KEY`.
 
     Args:
         data (TensorDictBase): transitions ``[N]`` (or ``[B, T]``, flattened row by row as collectors lay them out)
@@ -105,7 +116,10 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
                                  "step differs from the next step's observation (transitions out of order, or "
                                  "episodes interleaved without an episode-id key)")
         episodes.append({key: torch.cat([ep.get(key), ep.get(("next", key))[-1:]]) for key in observation_keys})
-    demos = demos_from_arrays(episodes, env_id=env_id)
+    success = data.get(SUCCESS_KEY, None)
+    # success at the episode's last observation, as recorded demos and the robomimic importer keep it
+    flags = None if success is None else [bool(success[part.stop - 1].any()) for part in slices]
+    demos = demos_from_arrays(episodes, env_id=env_id, success=flags)
     demos.header["source"] = {"format": "ted", "from": source, "episode_key": None if episode_key is None else
                               str(episode_key), "dropped": ["actions", "rewards"]}
     return demos
