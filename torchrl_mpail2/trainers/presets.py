@@ -54,7 +54,7 @@ def _robosuite_state_cpu(env: str) -> ExperimentConfig:
 
 
 def _lift_state_cpu() -> ExperimentConfig:
-    """Lift's best measured configuration (docs/results/README.md, two seeds, fixed evaluation): the CPU networks
+    """Lift's best measured configuration (docs/results/lift_state.md, two seeds, fixed evaluation): the CPU networks
     and planner, the standard TD(lambda) return instead of Eq. 6 as printed, the gripper command observed, one
     transition per window at batch 256 and UTD 1, mixed-precision updates where the CPU runs bf16 natively
     (``auto``: emulated on an AVX2 CPU, a bf16 update took 15 times as long as a float32 one), the raw critic as the
@@ -74,7 +74,7 @@ def _lift_state_cpu() -> ExperimentConfig:
 
 def _push_state_cpu() -> ExperimentConfig:
     """``lift_state`` on Push: Lift's additions measured on Push over three seeds (``push_state_liftcfg`` in
-    docs/results/README.md) beat the earlier Push configuration (batch 64, UTD 0.5, Eq. 6 as printed) at 50 and 100
+    docs/results/push_state.md) beat the earlier Push configuration (batch 64, UTD 0.5, Eq. 6 as printed) at 50 and 100
     episodes. Push keeps the reward it was measured with (running scale, Table 4's penalty 0.1): Lift's raw critic
     with penalty 10 has not been run on Push."""
     cfg = _lift_state_cpu()
