@@ -310,7 +310,15 @@ class MPAIL2Trainer:
                               t.parallel_envs, state=None if planner is None else planner.make_tensordict_primer())
 
     def _store(self, episodes: list[TensorDict]) -> None:
-        """Into the replay, one episode after another; the latest-episode buffer ([-O]) keeps this batch's."""
+        """Into the replay, one episode after another; the latest-episode buffer ([-O]) keeps this batch's.
+
+        Each episode's trajectory id becomes its run-wide index (episodes done before it): a collector counts its
+        episodes from 0, again when it is rebuilt after an env error or a resume and in each Ray worker, and two
+        neighbouring episodes under one id would be sampled as one trajectory.
+        """
+        first = self.counters["episodes"]
+        episodes = [episode.set(TRAJ_KEY, torch.full_like(episode.get(TRAJ_KEY), first + i))
+                    for i, episode in enumerate(episodes)]
         for episode in episodes:
             self.replay.extend(episode)
         if self.latest is not None:
