@@ -48,6 +48,10 @@ class WarmupSwitch(TensorDictModuleBase):
 
     Non-finite actions of the wrapped actor raise :class:`NonFiniteActionError` before they reach the environment.
 
+    The switch is kept in a (non-persistent) boolean buffer behind the ``random_actions`` property, so that
+    ``TensorDict.from_module`` of the actor carries it: a copy acting in another process (a Ray worker,
+    :mod:`torchrl_mpail2.trainers.ray_collection`) follows the learner's warm-up with the weights it receives.
+
     It also keeps running sums over the wrapped actor's calls, read and reset by :meth:`pop_stats`: the time
     spent acting and, for a planner, its ``last_stats`` (elite return, plan std), summed as tensors so that
     acting never waits on a host sync.
@@ -60,12 +64,21 @@ class WarmupSwitch(TensorDictModuleBase):
         super().__init__()
         self.actor = actor
         self.action_spec = action_spec
-        self.random_actions = random_actions
+        self.register_buffer("_random_actions", torch.tensor(bool(random_actions)), persistent=False)
         self.in_keys = list(actor.in_keys)
         self.out_keys = list(actor.out_keys)
         self._sums: dict = {}
         self._calls = self._actions = 0
         self._seconds = 0.0
+
+    @property
+    def random_actions(self) -> bool:
+        """Whether the next steps take uniform random actions (the paper's warm-up)."""
+        return bool(self._random_actions)
+
+    @random_actions.setter
+    def random_actions(self, value: bool) -> None:
+        self._random_actions.fill_(bool(value))
 
     def pop_stats(self) -> dict[str, float]:
         """Means of the planner statistics, ``actions_per_s`` and the seconds spent acting (``act_s``) since the

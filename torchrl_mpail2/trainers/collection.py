@@ -10,7 +10,7 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.envs import ParallelEnv, SerialEnv, Transform
 
-__all__ = ["crossed_multiple", "episode_bound", "make_collector", "split_episodes"]
+__all__ = ["crossed_multiple", "episode_bound", "make_collector", "make_collector_env", "split_episodes"]
 
 MASK_KEY = ("collector", "mask")
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
@@ -29,15 +29,12 @@ def episode_bound(env) -> int:
     return DEFAULT_EPISODE_BOUND
 
 
-def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False,
-                   state: Transform | None = None) -> Collector:
-    """A collector yielding ``num_envs`` complete episodes at a time, padded to ``[num_envs, T]``.
-
-    Environment ``i`` is built with ``env_fn(seed=first_seed + i)``. With one environment it is used as it is
-    (no batched wrapper); with several, ``parallel`` picks a ``ParallelEnv`` (``env_fn`` must then be picklable:
-    a module-level function or a ``functools.partial`` of one) over a ``SerialEnv``. ``state`` (e.g. the planner's
-    :meth:`~torchrl_mpail2.planners.LatentMPPIPlanner.make_tensordict_primer`) is appended to the (batched) env.
-    """
+def make_collector_env(env_fn: Callable, first_seed: int, num_envs: int = 1, parallel: bool = False,
+                       state: Transform | None = None):
+    """The environment a collector of :func:`make_collector` steps: ``env_fn(seed=first_seed)`` alone, or
+    ``num_envs`` of them seeded ``first_seed + i`` in a ``ParallelEnv`` (``parallel``; ``env_fn`` must then be
+    picklable: a module-level function or a ``functools.partial`` of one) or a ``SerialEnv``, with ``state``
+    appended (e.g. the planner's :meth:`~torchrl_mpail2.planners.LatentMPPIPlanner.make_tensordict_primer`)."""
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
     if num_envs == 1:
@@ -45,8 +42,15 @@ def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, 
     else:
         batched = ParallelEnv if parallel else SerialEnv
         env = batched(num_envs, [functools.partial(env_fn, seed=first_seed + i) for i in range(num_envs)])
-    if state is not None:
-        env = env.append_transform(state)
+    return env if state is None else env.append_transform(state)
+
+
+def make_collector(env_fn: Callable, actor, first_seed: int, num_envs: int = 1, parallel: bool = False,
+                   state: Transform | None = None) -> Collector:
+    """A collector yielding ``num_envs`` complete episodes at a time, padded to ``[num_envs, T]``, from
+    :func:`make_collector_env` (environment ``i`` built with ``env_fn(seed=first_seed + i)``; with one environment
+    no batched wrapper)."""
+    env = make_collector_env(env_fn, first_seed, num_envs, parallel, state)
     return Collector(env, actor, frames_per_batch=1, total_frames=-1, trajs_per_batch=num_envs, traj_format="padded")
 
 

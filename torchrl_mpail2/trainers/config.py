@@ -21,6 +21,8 @@ from torchrl_mpail2.config import (
 
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
 RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads", "train.checkpoint_every")
+#: Who collects the training episodes (``TrainConfig.collector``): this process, or Ray workers.
+COLLECTORS = ("local", "ray")
 
 
 @dataclass
@@ -63,6 +65,17 @@ class TrainConfig:
     parallel_envs: bool = False
     """With ``num_envs > 1``: one worker process per environment (TorchRL ``ParallelEnv``) instead of all in the
     training process (``SerialEnv``)."""
+    collector: str = "local"
+    """Who collects the training episodes: ``local`` (this process, ``num_envs`` environments at a time) or ``ray``
+    (``ray_workers`` Ray workers, each with ``num_envs`` environments and a copy of the actor that receives the
+    learner's weights after each update; ``pip install 'torchrl-mpail2[ray]'``, cluster recipe in docs/ray.md).
+    Evaluation and checkpoints stay in the training process."""
+    ray_workers: int = 2
+    """With ``collector=ray``: Ray workers, one CPU each. A batch holds ``ray_workers * num_envs`` episodes, one set
+    from every worker, followed by ``utd`` updates per collected step (as ``num_envs`` environments in one process)."""
+    ray_address: str | None = None
+    """With ``collector=ray``: the Ray cluster to join, ``auto`` (the one ``ray start`` runs on this machine) or
+    ``HOST:6379``; None starts a local Ray of ``ray_workers`` CPUs for the run."""
     max_wall_s: float | None = None
     """Stop after this many seconds of training (checked after each episode); None: no time limit."""
     utd: float = 1.0
@@ -130,6 +143,7 @@ class TrainConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
+        "ray_workers": AT_LEAST_ONE,
         "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
         "eval_episodes": AT_LEAST_ONE, "eval_envs": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
         "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,
@@ -152,8 +166,18 @@ class TrainConfig:
             raise ConfigError(f"unknown ablation {self.ablation!r}; choose from {sorted(ABLATIONS)}")
         if self.warmup_episodes >= self.total_episodes:
             raise ConfigError(f"TrainConfig.warmup_episodes must lie in [0, total_episodes), got {self.warmup_episodes}")
-        if self.num_envs > self.total_episodes:
-            raise ConfigError(f"TrainConfig.num_envs={self.num_envs} is more than total_episodes={self.total_episodes}: "
+        if self.collector not in COLLECTORS:
+            raise ConfigError(f"unknown TrainConfig.collector {self.collector!r}; choose from {COLLECTORS}")
+        if self.collector == "ray" and self.parallel_envs:
+            raise ConfigError("TrainConfig.parallel_envs applies to collector='local': with collector='ray' each Ray "
+                              "worker is a process of its own (more of them: ray_workers)")
+        if self.ray_address is not None and self.collector != "ray":
+            raise ConfigError(f"TrainConfig.ray_address={self.ray_address!r} applies to collector='ray' only "
+                              f"(collector is {self.collector!r})")
+        if self.episodes_per_batch > self.total_episodes:
+            which = (f"num_envs={self.num_envs}" if self.collector == "local"
+                     else f"ray_workers * num_envs={self.ray_workers} * {self.num_envs}")
+            raise ConfigError(f"TrainConfig.{which} is more than total_episodes={self.total_episodes}: "
                               "the run could not use the extra environments (each collects whole episodes)")
         if self.eval_acting not in ACTING:
             raise ConfigError(f"unknown TrainConfig.eval_acting {self.eval_acting!r}; choose from {sorted(ACTING)}")
@@ -172,8 +196,17 @@ class TrainConfig:
             raise ConfigError(f"TrainConfig.device: {self.device!r} is not a torch device ({error})") from error
         if device.type == "cuda" and not torch.cuda.is_available():
             raise ConfigError(f"TrainConfig.device={self.device!r}, but torch sees no CUDA device here")
+        if self.collector == "ray" and device.type != "cpu":
+            raise ConfigError(f"TrainConfig.device={self.device!r} with collector='ray': Ray collection runs on the "
+                              "CPU for now (the workers would receive the learner's device tensors and build their "
+                              "envs on that device)")
         if self.logger not in ("csv", "wandb", "tensorboard", "none"):
             raise ConfigError(f"unknown logger {self.logger!r}; choose csv, wandb, tensorboard or none")
+
+    @property
+    def episodes_per_batch(self) -> int:
+        """Episodes of one collected batch: ``num_envs``, from each of the ``ray_workers`` with ``collector=ray``."""
+        return self.num_envs * (self.ray_workers if self.collector == "ray" else 1)
 
 
 @dataclass

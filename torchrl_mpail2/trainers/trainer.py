@@ -33,6 +33,7 @@ from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episod
                                                 evaluation_seeds, summarize_outcomes)
 from torchrl_mpail2.trainers.logs import RunLogger
 from torchrl_mpail2.trainers.plots import plot_run
+from torchrl_mpail2.trainers.ray_collection import RayEpisodeCollector, ray_init_kwargs, require_ray
 from torchrl_mpail2.trainers.run_demos import load_or_record_demos
 from torchrl_mpail2.trainers.run_folder import RunFolder
 from torchrl_mpail2.trainers.stop_signals import StopOnSignal
@@ -79,6 +80,8 @@ class MPAIL2Trainer:
                agent: MPAIL2Agent | None) -> None:
         self.cfg = cfg
         t = cfg.train
+        if t.collector == "ray":
+            require_ray("train.collector='ray'")  # before anything is built or recorded
         if t.threads:
             torch.set_num_threads(t.threads)
         torch.manual_seed(t.seed)
@@ -120,8 +123,8 @@ class MPAIL2Trainer:
     # ---- setup -----------------------------------------------------------------------------------
     def _make_replay(self, scratch: Path | None, horizon: int) -> TensorDictReplayBuffer:
         t = self.cfg.train
-        # a batch of num_envs episodes may step past total_episodes by up to num_envs - 1 episodes
-        capacity = t.replay_size or (t.total_episodes + t.num_envs - 1) * episode_bound(self.env)
+        # a batch of several episodes may step past total_episodes by up to one batch less one episode
+        capacity = t.replay_size or (t.total_episodes + t.episodes_per_batch - 1) * episode_bound(self.env)
         if scratch is not None:
             # the live storage is a working copy; what survives a crash is the copy in checkpoints/last
             shutil.rmtree(scratch, ignore_errors=True)
@@ -303,11 +306,17 @@ class MPAIL2Trainer:
 
     # ---- the loop --------------------------------------------------------------------------------
     def _collector(self):
-        """The planner's warm start travels in the tensordict (each env its own), so that batched envs work."""
+        """This process's collector, or Ray workers' (``train.collector``), seeded ``seed + episodes`` on. The
+        planner's warm start travels in the tensordict (each env its own), so that batched envs work."""
         t = self.cfg.train
         planner = self.agent.planner if self.agent.policy is self.agent.planner else None
-        return make_collector(self.env_fn, self.agent.actor, t.seed + self.counters["episodes"], t.num_envs,
-                              t.parallel_envs, state=None if planner is None else planner.make_tensordict_primer())
+        state = None if planner is None else planner.make_tensordict_primer()
+        first_seed = t.seed + self.counters["episodes"]
+        if t.collector == "ray":
+            return RayEpisodeCollector(self.env_fn, self.agent.actor, self.agent.modules, first_seed=first_seed,
+                                       workers=t.ray_workers, num_envs=t.num_envs, state=state,
+                                       ray_init_config=ray_init_kwargs(t.ray_address, t.ray_workers))
+        return make_collector(self.env_fn, self.agent.actor, first_seed, t.num_envs, t.parallel_envs, state=state)
 
     def _store(self, episodes: list[TensorDict]) -> None:
         """Into the replay, one episode after another; the latest-episode buffer ([-O]) keeps this batch's.
@@ -327,7 +336,7 @@ class MPAIL2Trainer:
                 self.latest.extend(episode)
 
     def _next_episode(self, state: dict) -> TensorDict:
-        """Next ``[num_envs, T]`` batch of complete episodes from the collector. A simulator exception ends that batch with a
+        """Next ``[episodes_per_batch, T]`` batch of complete episodes from the collector. A simulator exception ends that batch with a
         warning; a fresh collector (and environment) takes over and training goes on. Non-finite actions
         of the learner's own actor stop training at once (a new environment would not help)."""
         while True:
@@ -402,8 +411,11 @@ class MPAIL2Trainer:
                 record = records[-1]  # the batch's own figures (timing, updates, counters) go with its last episode
                 record["env_steps_per_s"] = steps / collect_s
                 record["collect_s"] = collect_s
-                self._time("act", record.get("act_s", 0.0))
-                self._time("env", collect_s - record.get("act_s", 0.0))
+                if t.collector == "ray":  # acting is timed in the workers, and not logged
+                    self._time("collect", collect_s)
+                else:
+                    self._time("act", record.get("act_s", 0.0))
+                    self._time("env", collect_s - record.get("act_s", 0.0))
                 self.counters["episodes"] += len(episodes)
                 self.counters["env_steps"] += steps
                 if self.counters["episodes"] >= t.warmup_episodes:
