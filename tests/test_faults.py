@@ -196,6 +196,31 @@ def test_a_truncated_stored_replay_is_refused_naming_the_file(demo_dir, tmp_path
         MPAIL2Trainer.resume(run)
 
 
+def test_a_checkpoint_holds_the_stored_replay_steps_alone_and_resumes_to_the_same_samples(demo_dir, tmp_path):
+    """The live replay memmap spans the whole capacity (sparse on disk); its checkpoint copies the stored steps
+    alone (issue 48: it copied the whole capacity), and a resumed run samples from them as the run would have."""
+    import torch
+
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    run = tmp_path / "run"
+    trainer = MPAIL2Trainer(_cfg(demo_dir, "train.replay_size=100000"), run_dir=run)
+    trainer.train()
+    stored = run / "checkpoints" / "last" / "replay" / "storage" / "observation.memmap"
+    row = trainer.replay._storage._storage["observation"][0]
+    assert len(trainer.replay) == 100 and stored.stat().st_size == 100 * row.numel() * row.element_size()
+    torch.manual_seed(5)
+    expected = trainer.replay.sample().exclude("expert")
+    resumed = MPAIL2Trainer.resume(run, ["train.total_episodes=3"])
+    assert len(resumed.replay) == 100 and resumed.replay._writer._cursor == trainer.replay._writer._cursor
+    torch.manual_seed(5)
+    assert (resumed.replay.sample().exclude("expert") == expected).all()
+    resumed.train()  # and it goes on from there
+    assert len(resumed.replay) == 150
+    stored = run / "checkpoints" / "last" / "replay" / "storage" / "observation.memmap"
+    assert stored.stat().st_size == 150 * row.numel() * row.element_size()
+
+
 def test_a_zero_byte_state_file_is_refused_naming_the_file(demo_dir, tmp_path):
     from torchrl_mpail2.data.checkpoint import read_checkpoint
 

@@ -86,6 +86,22 @@ def test_model_free_ablations_run(tmp_path, ablation):
     assert (trainer.latest is not None) == (ablation == "PMO")
 
 
+def test_a_run_shorter_than_eval_every_ends_without_an_evaluation(tmp_path):
+    """A smoke run follows its own ``eval_every`` (issue 48): two episodes with evaluations every three play none
+    (they played ``eval_episodes`` at the end before), and still draw their figures; a run that reaches
+    ``eval_every`` evaluates there and where it ends."""
+    small = ["train.num_demos=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_episodes=2",
+             "planner.num_candidates=32", "planner.num_elites=4"]
+    summary = MPAIL2Trainer(_cfg(*small, "train.total_episodes=2", "train.eval_every=3", "train.figures=true"),
+                            run_dir=tmp_path / "short").train()
+    assert summary["last_eval"] is None and "evaluate" not in summary["time_split_s"]
+    assert not (tmp_path / "short" / "eval.jsonl").exists() and (tmp_path / "short" / "curves.png").exists()
+    MPAIL2Trainer(_cfg(*small, "train.total_episodes=3", "train.eval_every=2", "train.eval_episodes=1"),
+                  run_dir=tmp_path / "long").train()
+    evaluations = [json.loads(line) for line in (tmp_path / "long" / "eval.jsonl").read_text().splitlines()]
+    assert [(e["episode"], e["episodes"]) for e in evaluations] == [(2, 1), (3, 1)]
+
+
 def test_bad_configs_fail_before_training():
     with pytest.raises(ConfigError, match="num_elites"):
         _cfg("planner.num_elites=1000")

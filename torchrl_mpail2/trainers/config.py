@@ -83,7 +83,8 @@ class TrainConfig:
     batch_size: int = 256
     """Sub-trajectories per update (each H steps long)."""
     eval_every: int = 10
-    """Evaluate every this many episodes (0: never)."""
+    """Evaluate every this many episodes, and where the run ends (0: never). A run shorter than this (a smoke run of a
+    few episodes) reaches no evaluation and ends without one."""
     eval_episodes: int = 20
     """Episodes per evaluation (50 for final numbers, as in the paper's real-world tables)."""
     eval_envs: int = 1
@@ -97,8 +98,9 @@ class TrainConfig:
     result) or ``random`` (the action sampled around it as in training, the noise drawn from the evaluation's
     per-episode seeded generator, so the episodes stay fixed)."""
     video: bool = False
-    """Record the first ``video_episodes`` episodes of each evaluation to ``videos/*.mp4`` in the run folder (and to
-    wandb where it is the logger); needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
+    """Record the first ``video_episodes`` episodes of each evaluation to ``videos/*.mp4`` in the run folder, and send
+    them to the logger under ``eval/video`` (``trainers.logs.RunLogger.log_videos``: tensorboard needs moviepy 1);
+    needs the ``video`` extra (imageio-ffmpeg) and an env with ``render()``."""
     video_episodes: int = 1
     """Evaluation episodes recorded per evaluation when ``video`` is on."""
     eval_seed: int = DEFAULT_EVAL_SEED
@@ -119,9 +121,14 @@ class TrainConfig:
     """Run folder; None makes runs/<env>-<seed>-<time>."""
     replay_size: int | None = None
     """Replay capacity in steps (memory-mapped in the run folder); None holds the whole run, like the paper's unbounded
-    buffer (sized from the episode budget when the run is built, so a resumed run with a larger budget gets more)."""
+    buffer (sized from the episode budget when the run is built, so a resumed run with a larger budget gets more).
+    The memory-mapped files are sparse: disk use follows the steps stored, not the capacity, and checkpoints hold
+    the stored steps alone (``data.checkpoint.dump_replay``)."""
     logger: str = "csv"
-    """csv | wandb | tensorboard | none."""
+    """csv | wandb | tensorboard | none. wandb goes online where it is logged in (``wandb login``) and reads its own
+    environment variables: ``WANDB_MODE=offline`` (or ``disabled``), ``WANDB_PROJECT`` (default:
+    ``trainers.logs.WANDB_PROJECT``), ``WANDB_ENTITY``, ``WANDB_RUN_GROUP``, ``WANDB_NAME`` (default: the run folder's
+    name) and ``WANDB_DIR`` (default: the run folder); see ``trainers.logs.make_torchrl_logger``."""
     ablation: str = "none"
     """A Table 2 name (``agents.switches.ABLATIONS``): none | P | O | PM | PMO."""
     threads: int | None = None

@@ -1,10 +1,22 @@
-"""Run logging: JSON lines for plots and resume, plus a TorchRL logger (CSV, wandb offline, tensorboard)."""
+"""Run logging: JSON lines for plots and resume, plus a TorchRL logger (CSV, wandb, tensorboard) that also takes
+the evaluation videos."""
 from __future__ import annotations
 
+import importlib.util
 import json
+import os
+import warnings
 from pathlib import Path
 
+import numpy as np
+
 from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, read_jsonl
+from torchrl_mpail2.trainers.videos import VIDEO_FPS, video_tensor
+
+#: The wandb project of a run whose environment names none (``WANDB_PROJECT``).
+WANDB_PROJECT = "torchrl-mpail2"
+#: Where an evaluation's videos go in the TorchRL logger.
+VIDEO_TAG = "eval/video"
 
 #: Metric name -> log group, so that dashboards show the paper's groups.
 GROUPS = {
@@ -26,27 +38,71 @@ def group_of(name: str) -> str:
 
 
 def make_torchrl_logger(kind: str, run_dir: Path, config: dict):
+    """The TorchRL logger ``kind`` (``TrainConfig.logger``) writing into ``run_dir``; None for ``"none"``.
+
+    wandb goes online where it is logged in and follows its own environment variables: ``WANDB_MODE`` (``offline``,
+    ``disabled``), ``WANDB_PROJECT`` (default :data:`WANDB_PROJECT`), ``WANDB_ENTITY``, ``WANDB_RUN_GROUP``,
+    ``WANDB_NAME`` (default: the run folder's name) and ``WANDB_DIR`` (default: the run folder; wandb writes under
+    its ``wandb/``). The CSV logger writes each evaluation's videos under ``logs/videos/eval/`` as mp4 where
+    torchcodec is installed, as the uint8 tensor saved by ``torch.save`` (``.pt``) elsewhere.
+    """
     if kind == "none":
         return None
     if kind == "csv":
         from torchrl.record.loggers import CSVLogger
-        return CSVLogger(exp_name="logs", log_dir=str(run_dir))
+        return CSVLogger(exp_name="logs", log_dir=str(run_dir), video_format=_csv_video_format(), video_fps=VIDEO_FPS)
     if kind == "wandb":
+        import wandb
         from torchrl.record.loggers import WandbLogger
-        return WandbLogger(exp_name=run_dir.name, offline=True, save_dir=str(run_dir), config=config)
+        # TorchRL passes name, dir and project to wandb.init, where they would override wandb's own variables
+        try:
+            return WandbLogger(exp_name=os.environ.get("WANDB_NAME") or run_dir.name,
+                               save_dir=os.environ.get("WANDB_DIR") or str(run_dir),
+                               project=os.environ.get("WANDB_PROJECT") or WANDB_PROJECT, config=config,
+                               video_fps=VIDEO_FPS)
+        except wandb.errors.UsageError as error:  # not logged in, most often
+            raise RuntimeError(f"train.logger=wandb: {error} Or log offline with WANDB_MODE=offline "
+                               "(wandb sync uploads the run later).") from error
     if kind == "tensorboard":
         from torchrl.record.loggers import TensorboardLogger
         return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir / "tensorboard"))
     raise ValueError(f"unknown logger {kind!r}")
 
 
+def _csv_video_format() -> str:
+    """mp4 where TorchRL's CSV logger can encode it (torchcodec), its own ``pt`` format elsewhere."""
+    try:
+        importlib.import_module("torchcodec.encoders")
+    except Exception:  # missing, or built for another torch: both leave mp4 unwritable
+        return "pt"
+    return "mp4"
+
+
+def video_blocker(logger) -> str | None:
+    """Why ``logger`` cannot take videos here (None when it can)."""
+    if type(logger).__name__ != "TensorboardLogger":
+        return None
+    try:  # torch's add_video encodes a GIF with moviepy 1 (moviepy.editor, gone from moviepy 2)
+        found = importlib.util.find_spec("moviepy.editor") is not None
+    except ImportError:
+        found = False
+    if found:
+        return None
+    return ("train.logger=tensorboard gets no videos here: torch's add_video needs moviepy 1 "
+            "(pip install 'moviepy<2'); the mp4 files are in the run folder's videos/")
+
+
 class RunLogger:
     """Appends per-episode and per-evaluation records to ``metrics.jsonl`` / ``eval.jsonl`` and a TorchRL logger."""
 
-    def __init__(self, run_dir: Path, kind: str, config: dict):
+    def __init__(self, run_dir: Path, kind: str, config: dict, video: bool = False):
         self.run_dir = Path(run_dir)
         self.logger = make_torchrl_logger(kind, self.run_dir, config)
         self.successes = [float(r["success"]) for r in read_jsonl(self.run_dir / METRICS_FILE)]
+        #: why the logger gets no videos (None when it does, or when the run films nothing)
+        self.video_blocker = video_blocker(self.logger) if video else None
+        if self.video_blocker:
+            warnings.warn(self.video_blocker, RuntimeWarning, stacklevel=2)
 
     def _scalars(self, record: dict, step: int, prefix: str = "") -> None:
         if self.logger is None:
@@ -66,12 +122,18 @@ class RunLogger:
             f.write(json.dumps(record) + "\n")
         self._scalars(record, record["episode"], prefix="eval/")
 
-    def log_video(self, path: Path, step: int) -> None:
-        """Sends an evaluation video (an mp4 in the run folder) to the logger, where it takes media (wandb)."""
-        if self.logger is not None and type(self.logger).__name__ == "WandbLogger":
+    def log_videos(self, videos: list[np.ndarray], paths: list[Path], step: int) -> None:
+        """Sends an evaluation's videos (``[T, H, W, 3]`` uint8 frames, written to ``paths``) to the logger under
+        :data:`VIDEO_TAG`: TorchRL's ``log_video`` takes them as one ``[B, T, C, H, W]`` tensor (CSV, tensorboard);
+        wandb takes the mp4 files themselves, which need no moviepy, at the step of the evaluation's scalars."""
+        if self.logger is None or self.video_blocker or not videos:
+            return
+        if type(self.logger).__name__ == "WandbLogger":
             import wandb
 
-            self.logger.experiment.log({"eval/video": wandb.Video(str(path), format="mp4")}, step=step)
+            self.logger.log_metrics({VIDEO_TAG: [wandb.Video(str(p), format="mp4") for p in paths]}, step=step)
+        else:
+            self.logger.log_video(VIDEO_TAG, video_tensor(videos), step=step, fps=VIDEO_FPS)
 
     def eval_at(self, episode: int) -> dict | None:
         """The evaluation ``eval.jsonl`` holds at ``episode`` (None if there is none)."""

@@ -117,8 +117,9 @@ class MPAIL2Trainer:
         self.time_split: dict[str, float] = {}
         #: wall seconds of the run's earlier launches (up to the checkpoint this one resumed) and this launch's start
         self._earlier_wall_s, self._launch_start = 0.0, None
+        self._eval_frames: list = []  # the filmed episodes of the latest evaluation (train.video)
         (self.run_dir / "config.json").write_text(cfg.to_json())
-        self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict())
+        self.logger = RunLogger(self.run_dir, t.logger, cfg.to_dict(), video=t.video)
 
     # ---- setup -----------------------------------------------------------------------------------
     def _make_replay(self, scratch: Path | None, horizon: int) -> TensorDictReplayBuffer:
@@ -171,7 +172,9 @@ class MPAIL2Trainer:
         """Episodes from a fixed set of initial states, acting as ``train.eval_acting`` says (see :mod:`.evaluation`).
 
         ``success_rate_any_step`` (success at any step of the episode, the paper's definition) is the headline
-        figure; ``success_rate`` counts episodes whose last step is a success.
+        figure; ``success_rate`` counts episodes whose last step is a success. With ``train.video`` the filmed
+        episodes are written to ``videos/`` (their paths under ``"videos"``) and their frames kept for the logger
+        until :meth:`_evaluate_and_checkpoint` sends them.
         """
         t = self.cfg.train
         seeds, videos = self.evaluation_seeds(episodes), [] if t.video else None
@@ -185,6 +188,7 @@ class MPAIL2Trainer:
             outcomes = evaluate_episodes_lockstep(envs, self.agent.policy, seeds, self.agent.planner, videos=videos,
                                                   video_episodes=t.video_episodes, acting=t.eval_acting)
         summary = summarize_outcomes(outcomes)
+        self._eval_frames = videos or []  # [T, H, W, 3] arrays, for the logger
         if videos:
             summary["videos"] = [str(p) for p in write_videos(videos, self.run_dir / "videos",
                                                               f"eval_{self.counters['episodes']:06d}")]
@@ -393,6 +397,7 @@ class MPAIL2Trainer:
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start, evaluation, state = time.perf_counter(), None, {}
         self._launch_start = start
+        evaluates_at_end = self._evaluates_at_end()
         try:
             while self.counters["episodes"] < t.total_episodes:
                 if t.max_wall_s is not None and time.perf_counter() - start > t.max_wall_s:
@@ -428,7 +433,7 @@ class MPAIL2Trainer:
                     self.logger.log_episode(each)
                 self._time("log", time.perf_counter() - tick)
                 done, added = self.counters["episodes"], len(episodes)
-                if t.eval_every and (crossed_multiple(done, added, t.eval_every) or done >= t.total_episodes):
+                if crossed_multiple(done, added, t.eval_every) or (evaluates_at_end and done >= t.total_episodes):
                     evaluation = self._evaluate_and_checkpoint()
                 tick = time.perf_counter()
                 if crossed_multiple(done, added, t.checkpoint_every):
@@ -445,14 +450,14 @@ class MPAIL2Trainer:
             if state.get("collector") is not None:
                 state["collector"].shutdown()
         # after a stop signal: no evaluation, the checkpoint only (a second signal stops at once)
-        if t.eval_every and not stop.requested and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
+        if evaluates_at_end and not stop.requested and (evaluation is None or evaluation["episode"] != self.counters["episodes"]):
             # stopped early: evaluate where it stopped, unless a launch before this one did
             evaluation = self.logger.eval_at(self.counters["episodes"]) or self._evaluate_and_checkpoint()
         tick = time.perf_counter()
         if self._last_written != self.counters["episodes"]:
             self.save("last", with_replay=True)
         self._time("checkpoint", time.perf_counter() - tick)
-        if not t.eval_every:  # otherwise the final evaluation above has just drawn them
+        if evaluation is None or evaluation["episode"] != self.counters["episodes"]:  # else the evaluation drew them
             self._draw_figures()
         summary = {"episodes": self.counters["episodes"], "env_steps": self.counters["env_steps"],
                    "updates": self.counters["updates"], "wall_time_s": time.perf_counter() - start,
@@ -465,17 +470,24 @@ class MPAIL2Trainer:
         self._earlier_wall_s, self._launch_start = summary["run_wall_time_s"], None  # a later train() adds to it
         return summary
 
+    def _evaluates_at_end(self) -> bool:
+        """Whether the run evaluates where it ends: evaluations are on and its budget reaches ``eval_every``.
+        A run shorter than that (a smoke run of a few episodes) would reach no evaluation, and ends without one."""
+        t = self.cfg.train
+        return bool(t.eval_every) and t.total_episodes >= t.eval_every
+
     def _time(self, stage: str, seconds: float) -> None:
         self.time_split[stage] = self.time_split.get(stage, 0.0) + seconds
 
     def _evaluate_and_checkpoint(self) -> dict:
         tick = time.perf_counter()
+        self._eval_frames = []  # an evaluate() replaced by a caller films nothing
         evaluation = self.evaluate()
         self._time("evaluate", time.perf_counter() - tick)
         evaluation["episode"] = self.counters["episodes"]
         self.logger.log_eval(evaluation)
-        for path in evaluation.get("videos", []):
-            self.logger.log_video(Path(path), self.counters["episodes"])
+        frames, self._eval_frames = self._eval_frames, []  # not held in memory until the next evaluation
+        self.logger.log_videos(frames, [Path(p) for p in evaluation.get("videos", [])], self.counters["episodes"])
         score = (evaluation["success_rate_any_step"], evaluation["success_rate"])
         tick = time.perf_counter()
         if score > self.best_eval:

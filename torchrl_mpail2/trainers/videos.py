@@ -1,11 +1,13 @@
-"""Evaluation videos: frames from ``env.render()`` written as mp4 files (imageio with its ffmpeg plugin)."""
+"""Evaluation videos: frames from ``env.render()`` written as mp4 files (imageio with its ffmpeg plugin) and shaped
+for TorchRL's loggers."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import torch
 
-__all__ = ["VIDEO_FPS", "check_can_film", "write_videos"]
+__all__ = ["VIDEO_FPS", "check_can_film", "video_tensor", "write_videos"]
 
 #: Frame rate of the videos: the robosuite control rate (the point mass has no clock of its own).
 VIDEO_FPS = 20
@@ -36,3 +38,11 @@ def write_videos(videos: list[np.ndarray], folder: Path, stem: str) -> list[Path
         tmp.replace(path)
         paths.append(path)
     return paths
+
+
+def video_tensor(videos: list[np.ndarray]) -> torch.Tensor:
+    """The ``[B, T, C, H, W]`` uint8 tensor of TorchRL's ``Logger.log_video`` from ``B`` arrays ``[T_i, H, W, 3]``;
+    a shorter episode holds its last frame to the longest one's end."""
+    length = max(len(frames) for frames in videos)
+    padded = [np.concatenate([frames, np.repeat(frames[-1:], length - len(frames), axis=0)]) for frames in videos]
+    return torch.from_numpy(np.stack(padded)).permute(0, 1, 4, 2, 3).contiguous()
