@@ -19,10 +19,10 @@ def git_commit(where: Path, short: bool = True) -> str | None:
 
 def write_record(out: Path, name: str, fields: dict, note: str, root: Path, markdown) -> dict:
     """Writes ``out/name.json`` (``fields`` with ``commit``, ``note`` and ``machine`` added) and ``out/name.md``
-    (``markdown(commit)``); returns the record."""
+    (``markdown(commit)``, ending with a link to the JSON); returns the record."""
     commit = git_commit(root)
     record = {**fields, "commit": commit, "note": note, "machine": {"cpu": platform.processor() or platform.machine()}}
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps(record, indent=2))
-    (out / f"{name}.md").write_text(markdown(commit))
+    (out / f"{name}.md").write_text(markdown(commit).rstrip("\n") + f"\n\nData: [{name}.json]({name}.json)\n")
     return record

@@ -77,7 +77,7 @@ def run(checkpoint: Path, seeds: list[int], frames: int, warmup: int, episodes: 
                                          if k != "success_any_step_per_episode"}), flush=True)
     random_policy = success(make_env("point_mass"), None, episodes)
     mean = lambda key: sum(r[key] for r in rows) / len(rows)  # noqa: E731
-    return {"task": "point_mass", "checkpoint": str(checkpoint), "reward_key": "learned_reward",
+    return {"task": "point_mass", "reward_key": "learned_reward",
             "eval_episodes": episodes, "first_eval_seed": EVAL_SEED, "seeds": seeds, "sac": rows,
             "sac_success_any_step_mean": mean("success_rate_any_step"), "sac_success_last_step_mean": mean("success_rate"),
             "random_policy_success_any_step": random_policy["success_rate_any_step"],
@@ -96,7 +96,9 @@ def main() -> None:
     p.add_argument("--controls", type=int, default=1,
                    help="also train SAC on an untrained reward network for the first N seeds (the control)")
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out", type=Path, default=RESULTS / "learned_reward_sac.json")
+    p.add_argument("--out", type=Path, default=Path("runs") / "benchmarks" / "learned_reward_sac.json",
+                   help=f"where the record goes (the docs' copy: {RESULTS.relative_to(RESULTS.parents[2])}/"
+                        "learned_reward_sac.json)")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as scratch:
@@ -105,6 +107,8 @@ def main() -> None:
         mpail2_seconds = time.perf_counter() - start
         state = torch.load(checkpoint / "state.pt", weights_only=False)
         result = run(checkpoint, args.seeds, args.frames, args.warmup, args.episodes, args.controls)
+    # the checkpoint as given, never a temporary folder of this machine
+    result["checkpoint"] = str(args.checkpoint) if args.checkpoint else "trained afresh (point_mass preset)"
     result["mpail2_train_seconds"] = None if args.checkpoint else mpail2_seconds
     result["mpail2_best_eval"] = {"success_any_step": state["best_eval"][0], "success_last_step": state["best_eval"][1]}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -25,3 +25,23 @@ def test_the_link_pattern_finds_links_and_skips_urls_and_anchors(tmp_path):
     page = tmp_path / "p.md"
     page.write_text("[a](x.md) ![b](img/y.png) [c](https://e.org) [d](#part) [e](z.json#k)\n```\n[f](no.md)\n```\n")
     assert relative_links(page) == ["x.md", "img/y.png", "z.json#k"]
+
+
+def _linked_files() -> set[Path]:
+    return {(page.parent / t.split("#")[0]).resolve() for page in PAGES for t in relative_links(page)}
+
+
+def test_every_result_file_is_named_by_a_page():
+    """A result nobody links is a result nobody reads: link it from its page, or delete it (git keeps it)."""
+    linked = _linked_files()
+    results = ROOT / "docs" / "results"
+    unnamed = sorted(str(f.relative_to(ROOT)) for f in results.rglob("*")
+                     if f.is_file() and f.name != "README.md" and f.resolve() not in linked)
+    assert not unnamed, f"result files no page links: {unnamed}"
+
+
+def test_results_pages_hold_no_machine_paths():
+    machine = re.compile(r"(?<![\w.])/(?:work|tmp|home|root|Users)/")
+    found = [f"{f.relative_to(ROOT)}:{i}" for f in sorted((ROOT / "docs").rglob("*")) if f.suffix in (".md", ".json")
+             for i, line in enumerate(f.read_text().splitlines(), 1) if machine.search(line)]
+    assert not found, f"absolute machine paths in {found[:20]}"
