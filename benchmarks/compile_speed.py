@@ -34,7 +34,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine, median_ms, random_observations  # noqa: E402
 
-from torchrl_mpail2 import LatentMPPIPlanner, ModelConfig, PlannerConfig  # noqa: E402
+from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, ModelConfig, PlannerConfig  # noqa: E402
 from torchrl_mpail2.modules import MPAIL2Modules  # noqa: E402
 from torchrl_mpail2.trainers.presets import PRESETS  # noqa: E402
 
@@ -86,7 +86,7 @@ def measure(inputs: tuple, calls: int) -> dict:
     obs = observation(0)
     planners = {
         compiled: LatentMPPIPlanner(modules, spec, PlannerConfig(**{**vars(planner_cfg), "compile": compiled}),
-                                    generator=torch.Generator().manual_seed(0))
+                                    gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(0))
         for compiled in (False, True)
     }
     start = time.perf_counter()

@@ -48,7 +48,7 @@ def synchronize(device: torch.device) -> None:
 
 def plan_once(modules, obs: TensorDict, cfg: PlannerConfig, seed: int) -> torch.Tensor:
     spec = _action_spec(modules.action_dim, obs.device)
-    planner = LatentMPPIPlanner(modules, spec, cfg)
+    planner = LatentMPPIPlanner(modules, spec, cfg, gamma=LossConfig.gamma)
     planner.generator = torch.Generator(device=obs.device).manual_seed(seed)
     return planner(obs.clone())["action"]
 
@@ -158,7 +158,8 @@ def speed(device: torch.device, calls: int, updates: int, batch: int, compile_mo
                 # it would silently run eagerly
                 torch._dynamo.reset()
             planner = LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=bf16, compile=compiled,
-                                                                     compile_mode=mode or "default"))
+                                                                     compile_mode=mode or "default"),
+                                        gamma=LossConfig.gamma)
             start = time.perf_counter()
             planner(obs.clone())  # compiles here with compile=True
             synchronize(device)

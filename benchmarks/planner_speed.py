@@ -112,10 +112,11 @@ def build(setting, num_envs: int, seed: int = 0) -> dict:
     with torch.no_grad():
         z = modules.encoder.encode(obs)
     planners = {
-        "ours fp32": LatentMPPIPlanner(modules, spec, PlannerConfig(), generator=torch.Generator().manual_seed(0)),
-        "ours bf16": LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=True), generator=torch.Generator().manual_seed(0)),
-        "initial fp32": InitialPlanner(modules, spec, PlannerConfig(), generator=torch.Generator().manual_seed(0)),
-        "initial bf16": InitialPlanner(modules, spec, PlannerConfig(bf16=True), generator=torch.Generator().manual_seed(0)),
+        "ours fp32": LatentMPPIPlanner(modules, spec, PlannerConfig(), gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(0)),
+        "ours bf16": LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=True), gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(0)),
+        "initial fp32": InitialPlanner(modules, spec, PlannerConfig(), gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(0)),
+        "initial bf16": InitialPlanner(modules, spec, PlannerConfig(bf16=True), gamma=LossConfig.gamma,
+                                       generator=torch.Generator().manual_seed(0)),
         "torchrl TD(lambda)": MPPIPlanner(env, tdl, **common),
         "torchrl terminal": MPPIPlanner(env, TerminalReturn(modules, LossConfig.gamma), **common),
     }
@@ -153,13 +154,14 @@ def bf16_quality(setting, num_obs: int = 8) -> dict:
     obs = TensorDict(random_observations(setting.observations, num_obs), [num_obs])
 
     def first_action(bf16: bool, seed: int) -> torch.Tensor:
-        planner = LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=bf16), generator=torch.Generator().manual_seed(seed))
+        planner = LatentMPPIPlanner(modules, spec, PlannerConfig(bf16=bf16), gamma=LossConfig.gamma,
+                                    generator=torch.Generator().manual_seed(seed))
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             return planner(obs.clone())["action"]
 
     a32, a16, a32_other = first_action(False, 0), first_action(True, 0), first_action(False, 1)
     # the same candidates scored in both precisions: relative error and overlap of the K best
-    planner = LatentMPPIPlanner(modules, spec, PlannerConfig())
+    planner = LatentMPPIPlanner(modules, spec, PlannerConfig(), gamma=LossConfig.gamma)
     cfg = planner.cfg
     with torch.inference_mode():
         z = modules.encoder.encode(obs)

@@ -119,7 +119,7 @@ def main(preset_name: str = "point_mass", episodes: int | None = None, num_demos
     modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg.model, demos=demos)
     losses = Losses(modules, cfg.loss)
     # Algorithm 2: latent MPPI seeded by the policy's plans, scored by the learned reward and Q.
-    planner = LatentMPPIPlanner(modules, env.action_spec, cfg.planner)
+    planner = LatentMPPIPlanner(modules, env.action_spec, cfg.planner, gamma=cfg.loss.gamma)
     # uniform random actions during the warm-up episodes
     actor = WarmupSwitch(planner, env.action_spec, random_actions=t.warmup_episodes > 0)
 

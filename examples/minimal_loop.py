@@ -25,7 +25,8 @@ def main(episodes=40, num_demos=20, batch_size=64, updates_per_episode=50, num_c
     modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg, demos=demos)  # normalised by the demos
     updater = MPAIL2Updater(MPAIL2Loss(modules, LossConfig(encoder_lr=3e-4)))  # one Adam per stage, paper order
     planner = LatentMPPIPlanner(modules, env.action_spec,
-                                PlannerConfig(num_candidates=num_candidates, num_elites=16, iterations=3))
+                                PlannerConfig(num_candidates=num_candidates, num_elites=16, iterations=3),
+                                gamma=updater.loss.cfg.gamma)  # plans discounted as the value is
     replay = TensorDictReplayBuffer(
         storage=LazyTensorStorage(episodes * 50), batch_size=batch_size * H,
         sampler=SliceSampler(slice_len=H, traj_key=("collector", "traj_ids"), strict_length=True),

@@ -544,9 +544,9 @@ def test_the_planner_checks_its_action_spec_at_construction():
     from conftest import tiny_modules
 
     with pytest.raises(ValueError, match=r"bounded to \[-1, 1\].*low=\[-2.0, -2.0\]"):
-        LatentMPPIPlanner(tiny_modules(), Bounded(-2, 2, (2,)))
+        LatentMPPIPlanner(tiny_modules(), Bounded(-2, 2, (2,)), gamma=LossConfig.gamma)
     with pytest.raises(ValueError, match="the action spec has 3 dimensions .*the networks act in 2"):
-        LatentMPPIPlanner(tiny_modules(), Bounded(-1, 1, (3,)))
+        LatentMPPIPlanner(tiny_modules(), Bounded(-1, 1, (3,)), gamma=LossConfig.gamma)
 
 
 # ---- kills at random moments ----------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from conftest import tiny_modules
-from torchrl_mpail2 import ConfigError, LatentMPPIPlanner, PlannerConfig
+from torchrl_mpail2 import ConfigError, LatentMPPIPlanner, LossConfig, PlannerConfig
 from torchrl_mpail2.modules.reward import RewardNet
 
 GOAL = torch.tensor([0.5, -0.3])
@@ -149,7 +149,8 @@ def test_returns_of_1e4_and_more_stay_finite():
 @pytest.mark.parametrize("batch", [(), (4,), (2, 3)])
 def test_any_batch_shape(batch):
     m = tiny_modules()
-    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2))
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2),
+                                gamma=LossConfig.gamma)
     td = planner(TensorDict({"observation": torch.randn(*batch, 3)}, batch))
     assert td["action"].shape == (*batch, 2) and td["plan"].shape == (*batch, 3, 2)
     assert td["policy_influence"].shape == (*batch, 1)
@@ -158,7 +159,8 @@ def test_any_batch_shape(batch):
 def test_bad_observations_and_impossible_configs_are_rejected():
     from torchrl_mpail2.config import ConfigError
     m = tiny_modules()
-    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2))
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=32, num_elites=4, iterations=2),
+                                gamma=LossConfig.gamma)
     with pytest.raises(ValueError, match="'observation': expected shape \\[\\*B, 3\\]"):
         planner(TensorDict({"observation": torch.randn(2, 4)}, [2]))
     with pytest.raises(ValueError, match="NaN"):
@@ -247,7 +249,7 @@ def _twin_planners(**cfg):
     modules = tiny_modules(obs_dim=3, action_dim=2, horizon=3)
     settings = dict(num_candidates=32, num_elites=8, iterations=2, **cfg)
     return [LatentMPPIPlanner(modules, Bounded(-1, 1, (2,)), PlannerConfig(**settings, compile=compiled),
-                              generator=torch.Generator().manual_seed(0)) for compiled in (False, True)]
+                              gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(0)) for compiled in (False, True)]
 
 
 def test_a_compiling_planner_copies_and_pickles_before_and_without_its_graphs():

@@ -92,7 +92,7 @@ def _planner_case():
 @pytest.mark.parametrize("deterministic", [True, False])
 def test_planner_matches_loop_reference_with_the_same_random_numbers(deterministic):
     m, cfg, obs = _planner_case()
-    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), cfg, generator=torch.Generator().manual_seed(7))
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), cfg, gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(7))
     gen = torch.Generator().manual_seed(7)
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     prev = None
@@ -104,7 +104,7 @@ def test_planner_matches_loop_reference_with_the_same_random_numbers(determinist
         torch.testing.assert_close(td["action"], action, atol=1e-4, rtol=1e-4)
     # the comparison discriminates: a reference with another temperature picks another plan
     _, other, _ = reference_plan(m, cfg, obs, torch.Generator().manual_seed(7), deterministic=True, temperature=5.0)
-    first = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), cfg, generator=torch.Generator().manual_seed(7))
+    first = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), cfg, gamma=LossConfig.gamma, generator=torch.Generator().manual_seed(7))
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         assert (first(TensorDict({"observation": obs}, [2]))["plan"] - other).abs().max() > 1e-3
 
@@ -115,7 +115,7 @@ def test_bf16_planning_runs_the_networks_in_bf16_and_restores_the_parameters():
     seen = []
     hooks = [net.register_forward_hook(lambda mod, inp, out: seen.append((type(mod).__name__, out.dtype)))
              for net in (m.dynamics.module.net[0], m.reward.module.net[2], m.policy.net.net[0])]
-    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(**PLANNER, bf16=True),
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(**PLANNER, bf16=True), gamma=LossConfig.gamma,
                                 generator=torch.Generator().manual_seed(0))
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         td = planner(TensorDict({"observation": obs}, [2]))

@@ -11,7 +11,7 @@ from torchrl.data import Unbounded
 from torchrl.envs import TensorDictPrimer
 from torchrl.modules.planners import MPCPlannerBase
 
-from torchrl_mpail2.config import LossConfig, PlannerConfig
+from torchrl_mpail2.config import PlannerConfig
 from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
@@ -105,7 +105,8 @@ class LatentMPPIPlanner(MPCPlannerBase):
         cfg (PlannerConfig, optional): Table 4 defaults.
 
     Keyword Args:
-        gamma (float): discount of the plan scores; pass the learner's ``LossConfig.gamma`` (its default here).
+        gamma (float): discount of the plan scores: the learner's ``LossConfig.gamma`` (required, so that plans and
+            the value they end on are discounted alike).
         action_key (NestedKey): where the action is written. Defaults to ``"action"``.
         generator (torch.Generator, optional): source of all sampling noise (for reproducible plans).
 
@@ -116,14 +117,15 @@ class LatentMPPIPlanner(MPCPlannerBase):
         >>> from torchrl_mpail2.modules import MPAIL2Modules
         >>> modules = MPAIL2Modules({"observation": [3]}, 2, ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16,
         ...                         vector_coder_hidden=16, horizon=4))
-        >>> planner = LatentMPPIPlanner(modules, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=64, num_elites=8))
+        >>> planner = LatentMPPIPlanner(modules, Bounded(-1, 1, (2,)), PlannerConfig(num_candidates=64, num_elites=8),
+        ...                             gamma=0.99)
         >>> td = planner(TensorDict({"observation": torch.zeros(3, 3)}, [3]))
         >>> td["action"].shape, td["plan"].shape, td["policy_influence"].shape
         (torch.Size([3, 2]), torch.Size([3, 4, 2]), torch.Size([3, 1]))
     """
 
     def __init__(self, modules: MPAIL2Modules, action_spec, cfg: PlannerConfig | None = None, *,
-                 gamma: float = LossConfig.gamma, action_key="action", generator: torch.Generator | None = None):
+                 gamma: float, action_key="action", generator: torch.Generator | None = None):
         check_action_spec(action_spec, modules.action_dim)
         env = LatentWorldModelEnv(modules, action_spec)
         super().__init__(env, action_key=action_key)
