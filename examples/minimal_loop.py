@@ -23,7 +23,8 @@ def main(episodes=40, num_demos=20, batch_size=64, updates_per_episode=50, num_c
     cfg = ModelConfig(latent_dim=32, hidden_dims=(64, 64), vector_coder_hidden=64, coder_dim=64, horizon=5)
     H = cfg.horizon
     modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg, demos=demos)  # normalised by the demos
-    updater = MPAIL2Updater(MPAIL2Loss(modules, LossConfig(encoder_lr=3e-4)))  # one Adam per stage, paper order
+    # one Adam per stage, paper order; the point_mass preset's running reward scale (the paper: the raw critic)
+    updater = MPAIL2Updater(MPAIL2Loss(modules, LossConfig(encoder_lr=3e-4, reward_scale_momentum=0.99)))
     planner = LatentMPPIPlanner(modules, env.action_spec,
                                 PlannerConfig(num_candidates=num_candidates, num_elites=16, iterations=3),
                                 gamma=updater.loss.cfg.gamma)  # plans discounted as the value is

@@ -240,9 +240,11 @@ class LossConfig:
     """Temporal discount rho of the multi-step latent prediction loss (Eq. 2)."""
     gp_coef: float = 0.1
     """Gradient-penalty coefficient beta of the reward loss (Eq. 3)."""
-    reward_scale_momentum: float | None = 0.99
-    """Running-scale momentum of the learned reward seen by value, actor and planner (None: raw critic, as
-    in the paper). With beta = 0.1 the WGAN critic's outputs reach hundreds, which no Q head can follow."""
+    reward_scale_momentum: float | None = None
+    """Running-scale momentum of the learned reward seen by value, actor and planner (None: the raw critic, as
+    in the paper). With beta = 0.1 the WGAN critic's outputs reach hundreds, which no Q head can follow: the
+    CPU presets ``point_mass`` and ``push_state`` (and those built on them) divide by a running scale of momentum
+    ``presets.RUNNING_REWARD_SCALE`` (docs/implementation_details.md)."""
     transitions_per_window: int | None = None
     """Random transitions of each replayed ``T``-step window that the reward, value and actor objectives use
     (None: all of them). The dynamics objective always uses whole windows. Their cost scales with it."""
