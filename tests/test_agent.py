@@ -213,15 +213,18 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
     assert [h["episodes"] for h in json.loads(out.read_text())["held_out_scores"]] == [2, 3]
 
 
-def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch):
+def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch, tmp_path):
     """``benchmarks/device_smoke.py`` is the GPU check; its CPU path keeps it from rotting between GPU sessions."""
     from torchrl_mpail2.config import ConfigError
+    from torchrl_mpail2.trainers import MPAIL2Trainer
 
     with pytest.raises(ConfigError, match="TrainConfig.device: 'gpu0' is not a torch device"):
         apply_overrides(preset("point_mass"), ["train.device=gpu0"])
     if not torch.cuda.is_available():
+        gpu_run = apply_overrides(preset("point_mass"), ["train.device=cuda"])  # a GPU run's config reads here
         with pytest.raises(ConfigError, match="sees no CUDA device"):
-            apply_overrides(preset("point_mass"), ["train.device=cuda"])
+            MPAIL2Trainer(gpu_run, run_dir=tmp_path / "run")  # but trains only where there is one
+        assert not (tmp_path / "run").exists()
     monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
     spec = importlib.util.spec_from_file_location("device_smoke", ROOT / "benchmarks" / "device_smoke.py")
     smoke = importlib.util.module_from_spec(spec)

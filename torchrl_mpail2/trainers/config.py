@@ -201,8 +201,8 @@ class TrainConfig:
             device = torch.device(self.device)
         except (RuntimeError, TypeError) as error:
             raise ConfigError(f"TrainConfig.device: {self.device!r} is not a torch device ({error})") from error
-        if device.type == "cuda" and not torch.cuda.is_available():
-            raise ConfigError(f"TrainConfig.device={self.device!r}, but torch sees no CUDA device here")
+        # whether the device exists here is checked where the agent is placed (MPAIL2Trainer): a GPU run's saved
+        # config stays readable on a CPU machine (diagnostics, benchmarks, from_checkpoint onto the CPU)
         if self.collector == "ray" and device.type != "cpu":
             raise ConfigError(f"TrainConfig.device={self.device!r} with collector='ray': Ray collection runs on the "
                               "CPU for now (the workers would receive the learner's device tensors and build their "

@@ -80,6 +80,8 @@ class MPAIL2Trainer:
                agent: MPAIL2Agent | None) -> None:
         self.cfg = cfg
         t = cfg.train
+        if torch.device(t.device).type == "cuda" and not torch.cuda.is_available():
+            raise ConfigError(f"TrainConfig.device={t.device!r}, but torch sees no CUDA device here")
         if t.collector == "ray":
             require_ray("train.collector='ray'")  # before anything is built or recorded
         if t.threads:
