@@ -35,3 +35,40 @@ def replay_batch(batch: int = 4, steps: int = 3, obs_dim: int = 3, action_dim: i
         ("next", "observation"): obs(), ("next", "terminated"): torch.zeros(batch, steps, 1, dtype=torch.bool),
         ("expert", "observation"): obs(), ("expert", "next", "observation"): obs(),
     }, [batch, steps])
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    """Four scripted point-mass demonstrations in a folder (one recording per test module)."""
+    from torchrl_mpail2.data import record_demos
+    from torchrl_mpail2.envs import make_env
+    from torchrl_mpail2.experts import PointMassExpert
+
+    path = tmp_path_factory.mktemp("demos") / "pm"
+    record_demos(make_env("point_mass", seed=1), PointMassExpert(), episodes=4, out=path, progress=False)
+    return path
+
+
+def short_run_cfg(demo_dir, *overrides):
+    """A two-episode point-mass run on ``demo_dir``'s demos: the quickest run that checkpoints and resumes."""
+    from torchrl_mpail2.trainers import apply_overrides, preset
+
+    return apply_overrides(preset("point_mass"), [
+        *QUIET_RUN, f"train.demos={demo_dir}", "train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.02",
+        "train.batch_size=8", "train.eval_every=0", "train.checkpoint_every=0", "planner.num_candidates=32",
+        "planner.num_elites=4", *overrides])
+
+
+def train_short_run(demo_dir, run, *overrides):
+    """Trains :func:`short_run_cfg` into the folder ``run``; returns it."""
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    MPAIL2Trainer(short_run_cfg(demo_dir, *overrides), run_dir=run).train()
+    return run
+
+
+def flip_a_byte(path) -> None:
+    """Corrupts a file the way a bad disk does: one byte in its middle inverted."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))

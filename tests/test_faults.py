@@ -4,7 +4,9 @@ from dataclasses import fields
 
 import pytest
 
-from conftest import QUIET_RUN
+from conftest import QUIET_RUN, flip_a_byte
+from conftest import short_run_cfg as _cfg
+from conftest import train_short_run as _trained
 from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig, PlannerConfig
 from torchrl_mpail2.trainers import TrainConfig, apply_overrides, preset
 
@@ -142,32 +144,6 @@ def test_nan_in_demonstrations_is_refused_when_saved_and_when_loaded(tmp_path):
 
 
 # ---- checkpoints, replay and run folders ----------------------------------------------------------------
-@pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory):
-    from torchrl_mpail2.data import record_demos
-    from torchrl_mpail2.envs import make_env
-    from torchrl_mpail2.experts import PointMassExpert
-
-    path = tmp_path_factory.mktemp("demos") / "pm"
-    record_demos(make_env("point_mass", seed=1), PointMassExpert(), episodes=4, out=path, progress=False)
-    return path
-
-
-def _cfg(demo_dir, *overrides):
-    return apply_overrides(preset("point_mass"), [
-        *QUIET_RUN, f"train.demos={demo_dir}",
-        "train.total_episodes=2", "train.warmup_episodes=1", "train.utd=0.02", "train.batch_size=8",
-        "train.eval_every=0",
-        "train.checkpoint_every=0", "planner.num_candidates=32", "planner.num_elites=4", *overrides])
-
-
-def _trained(demo_dir, run, *overrides):
-    from torchrl_mpail2.trainers import MPAIL2Trainer
-
-    MPAIL2Trainer(_cfg(demo_dir, *overrides), run_dir=run).train()
-    return run
-
-
 def _episodes_logged(run):
     import json
 
@@ -179,9 +155,7 @@ def test_a_flipped_byte_in_a_checkpoint_is_refused_naming_the_file(demo_dir, tmp
 
     run = _trained(demo_dir, tmp_path / "run")
     state = run / "checkpoints" / "last" / "state.pt"
-    data = bytearray(state.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    state.write_bytes(bytes(data))
+    flip_a_byte(state)
     with pytest.raises(RuntimeError, match=r"last/state.pt is corrupted: its sha256 does not match"):
         MPAIL2Trainer.resume(run)
 
