@@ -85,6 +85,21 @@ def test_init_from_a_checkpoint_of_other_network_sizes_names_the_fields_and_leav
     assert not (tmp_path / "pm").exists()
 
 
+def test_a_run_that_fails_before_its_first_episode_leaves_no_folder(demo_dir, tmp_path):
+    from torchrl_mpail2.trainers import MPAIL2Trainer
+
+    trainer = MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run")
+
+    def broken_env(state):
+        raise OSError("the simulator's display went away")
+
+    trainer._next_episode = broken_env
+    with pytest.raises(OSError, match="display went away"):
+        trainer.train()
+    assert not (tmp_path / "run").exists()  # a retry is not refused as "already holds a run"
+    MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run").train()
+
+
 def test_init_from_with_resume_is_refused(trained_run, tmp_path, capsys):
     from torchrl_mpail2.train import main
 

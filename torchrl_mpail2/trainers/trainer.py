@@ -367,7 +367,8 @@ class MPAIL2Trainer:
     def train(self) -> dict:
         """Runs until ``total_episodes``; returns a summary (best/last evaluation, counters, wall time).
 
-        The run folder is locked meanwhile (released when training ends, by an error too). A resumed run that
+        The run folder is locked meanwhile (released when training ends, by an error too; a new run that fails
+        before its first episode is removed, a resumed one kept). A resumed run that
         has already finished changes nothing: a warning says how to extend it, and its summary is returned.
         """
         finished = self._finished_summary()
@@ -376,6 +377,10 @@ class MPAIL2Trainer:
         self.run_folder.acquire()
         try:
             return self._train()
+        except BaseException:
+            if self.counters["episodes"] == 0:  # a run that fails before its first episode leaves no folder
+                self.run_folder.discard()
+            raise
         finally:
             self.close()
 
