@@ -222,3 +222,20 @@ def test_a_stop_signal_ends_the_episode_and_saves_last(demo_dir, tmp_path, sig):
     assert checkpoint_episodes(run / "checkpoints" / "last") == logged  # nothing since the last save lost
     assert json.loads((run / "summary.json").read_text())["stopped_by"] == sig.name
     assert not (run / "eval.jsonl").exists()
+
+
+def test_a_checkpoint_from_before_the_reward_scale_buffers_still_loads(trained_run):
+    """The shape check around ``load_state_dict`` must leave the modules' own hooks to fill what older checkpoints
+    lack (here the reward's running-scale buffers)."""
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.agents.mpail2 import load_weights
+    from torchrl_mpail2.data.checkpoint import read_checkpoint
+
+    state = read_checkpoint(trained_run / "checkpoints" / "last")
+    agent = MPAIL2Agent.from_checkpoint(trained_run / "checkpoints" / "last")
+    older = {k: v for k, v in state["modules"].items() if not k.startswith("reward.module.reward_scale")
+             and not k.startswith("reward.module.scale_")}
+    assert len(older) < len(state["modules"])
+    load_weights(agent.modules, older, "an older checkpoint")
+    assert agent.modules.reward.module.reward_scale.item() == 1.0  # the hook's: the raw critic, as it ran
+    agent.load_state_dict({**state, "modules": older}, with_optimizers=False)  # the agent's own path loads it too

@@ -208,21 +208,23 @@ class MPAIL2Agent:
 
 
 def load_weights(module: torch.nn.Module, weights: dict, source: str) -> None:
-    """``module.load_state_dict(weights)``, refused with every differing parameter named (its shape in
-    ``source`` and here) instead of PyTorch's size-mismatch error.
+    """``module.load_state_dict(weights)`` (its hooks fill what older checkpoints lack), refused with every differing
+    parameter named (its shape in ``source`` and here) instead of PyTorch's size-mismatch error.
 
     Raises:
         CheckpointError: a parameter is missing, extra or of another shape.
     """
-    own = module.state_dict()
-    differ = [f"{name}: {tuple(weights[name].shape)} in {source}, {tuple(own[name].shape)} here"
-              for name in own if name in weights and weights[name].shape != own[name].shape]
-    differ += [f"{name}: absent from {source}" for name in own if name not in weights]
-    differ += [f"{name}: in {source}, absent here" for name in weights if name not in own]
-    if differ:
-        shown = differ[:8] + ([f"... and {len(differ) - 8} more"] if len(differ) > 8 else [])
-        raise ckpt.CheckpointError(f"the networks of {source} differ from this agent's:\n  " + "\n  ".join(shown))
-    module.load_state_dict(weights)
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError as error:
+        own = module.state_dict()
+        differ = [f"{name}: {tuple(weights[name].shape)} in {source}, {tuple(own[name].shape)} here"
+                  for name in own if name in weights and weights[name].shape != own[name].shape]
+        differ += [f"{name}: absent from {source}" for name in own if name not in weights]
+        differ += [f"{name}: in {source}, absent here" for name in weights if name not in own]
+        shown = differ[:8] + ([f"... and {len(differ) - 8} more"] if len(differ) > 8 else []) or [str(error)]
+        raise ckpt.CheckpointError(f"the networks of {source} differ from this agent's:\n  "
+                                   + "\n  ".join(shown)) from error
 
 
 def _describe_specs(env) -> str:
