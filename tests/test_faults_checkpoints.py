@@ -90,10 +90,10 @@ def test_a_run_that_fails_before_its_first_episode_leaves_no_folder(demo_dir, tm
 
     trainer = MPAIL2Trainer(_cfg(demo_dir), run_dir=tmp_path / "run")
 
-    def broken_env(state):
+    def broken_env():
         raise OSError("the simulator's display went away")
 
-    trainer._next_episode = broken_env
+    trainer._collector = broken_env
     with pytest.raises(OSError, match="display went away"):
         trainer.train()
     assert not (tmp_path / "run").exists()  # a retry is not refused as "already holds a run"

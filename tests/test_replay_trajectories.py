@@ -8,6 +8,7 @@ from torchrl_mpail2.experts import PointMassExpert
 from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.collection import split_episodes
+from torchrl_mpail2.trainers.replay import store_episodes
 
 
 def test_episodes_of_restarted_collectors_stay_apart_in_the_replay(tmp_path):
@@ -23,7 +24,7 @@ def test_episodes_of_restarted_collectors_stay_apart_in_the_replay(tmp_path):
         episodes = split_episodes(next(iter(collector)), drop=(WARM_START_KEY,))
         collector.shutdown()
         assert episodes[0][TRAJ_KEY].unique().tolist() == [0]  # what the collector calls it
-        trainer._store(episodes)
+        store_episodes(episodes, trainer.counters["episodes"], trainer.replay)
         trainer.counters["episodes"] += 1
     for _ in range(5):  # 5 x 64 windows [B, H] sliced by trajectory id: about 13 start at the seam if it is unseen
         windows = trainer.sample_batch(trainer.replay)

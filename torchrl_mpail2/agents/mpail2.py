@@ -106,9 +106,35 @@ class MPAIL2Agent:
         """The deterministic acting module (planner or policy actor), without the warm-up switch."""
         return self.actor.actor
 
+    @property
+    def random_actions(self) -> bool:
+        """Whether :attr:`actor` acts at random (Algorithm 1's warm-up episodes) rather than with :attr:`policy`."""
+        return self.actor.random_actions
+
+    @random_actions.setter
+    def random_actions(self, value: bool) -> None:
+        self.actor.random_actions = value
+
     def update(self, tensordict: TensorDictBase, policy_tensordict: TensorDictBase | None = None):
-        """One learner update (see :meth:`MPAIL2Updater.update`)."""
+        """One learner update, every stage of Algorithm 1's inner loop (see :meth:`MPAIL2Updater.update`): the
+        ``loss_*`` terms and diagnostics, or None when the batch held NaN or Inf and was skipped whole (its
+        non-finite keys are then in :attr:`last_nonfinite_keys`)."""
         return self.updater.update(tensordict, policy_tensordict)
+
+    @property
+    def skipped(self) -> dict[str, int]:
+        """Updates skipped so far: whole batches under ``"batch"``, single stages under their names."""
+        return dict(self.updater.skipped)
+
+    @property
+    def last_nonfinite_keys(self) -> list[str]:
+        """The non-finite keys of the last batch :meth:`update` skipped."""
+        return list(self.updater.last_nonfinite_keys)
+
+    def stats(self) -> dict[str, float]:
+        """The acting statistics since the last call (planner figures averaged over its calls, ``act_s`` the
+        acting seconds), then reset."""
+        return self.actor.pop_stats()
 
     def state_dict(self) -> dict:
         return {"modules": self.modules.state_dict(), "loss": self.loss.state_dict(),

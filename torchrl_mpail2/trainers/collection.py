@@ -4,13 +4,17 @@ worker process each), the planner acting on all of them in one batched call."""
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Callable
 
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.envs import ParallelEnv, SerialEnv, Transform
 
-__all__ = ["crossed_multiple", "episode_bound", "make_collector", "make_collector_env", "split_episodes"]
+from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
+
+__all__ = ["EpisodeStream", "crossed_multiple", "episode_bound", "make_collector", "make_collector_env",
+           "split_episodes"]
 
 MASK_KEY = ("collector", "mask")
 #: Episode length assumed when an environment does not tell (gymnasium MuJoCo's limit).
@@ -70,3 +74,46 @@ def crossed_multiple(done: int, added: int, every: int) -> bool:
         (True, False, True)
     """
     return every > 0 and done // every > (done - added) // every
+
+
+class EpisodeStream:
+    """Batches of complete episodes from the collectors ``make`` builds, surviving simulator errors.
+
+    A simulator exception (``RuntimeError``, ``ValueError``, ``FloatingPointError``) ends the batch under way with a
+    warning; a fresh collector (and environment) takes over. Past ``max_restarts`` restarts in a run (``restarts``
+    counts the earlier launches' too) the exception is raised. A :class:`NonFiniteActionError` of the learner's own
+    actor is raised at once: a new environment would not help.
+
+    Args:
+        make (Callable[[], Collector]): builds a collector (called again after each restart).
+        restarts (int): restarts the run has already had (a resumed run's count). Defaults to 0.
+        max_restarts (int): restarts allowed in the whole run. Defaults to 100.
+    """
+
+    def __init__(self, make: Callable, restarts: int = 0, max_restarts: int = 100):
+        self.make, self.restarts, self.max_restarts = make, restarts, max_restarts
+        self._collector = self._iterator = None
+
+    def next(self, episode: int) -> TensorDictBase:
+        """The next ``[episodes, T]`` batch; ``episode`` (the run's number of the first) goes into warnings."""
+        while True:
+            if self._iterator is None:
+                self._collector = self.make()
+                self._iterator = iter(self._collector)
+            try:
+                return next(self._iterator)
+            except NonFiniteActionError:
+                raise
+            except (RuntimeError, ValueError, FloatingPointError) as err:
+                self.restarts += 1
+                if self.restarts > self.max_restarts:
+                    raise
+                warnings.warn(f"episode {episode} aborted by the environment ({err!r}); restarting the collector",
+                              RuntimeWarning, stacklevel=2)
+                self.shutdown()
+
+    def shutdown(self) -> None:
+        """Stops the current collector (the next :meth:`next` builds a new one)."""
+        if self._collector is not None:
+            self._collector.shutdown()
+        self._collector = self._iterator = None

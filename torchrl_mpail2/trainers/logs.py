@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from tensordict import TensorDictBase
 
+from torchrl_mpail2.trainers.evaluation import episode_outcome
 from torchrl_mpail2.trainers.plots import EVAL_FILE, METRICS_FILE, read_jsonl
 from torchrl_mpail2.trainers.videos import VIDEO_FPS, video_tensor
 
@@ -90,6 +94,30 @@ def video_blocker(logger) -> str | None:
         return None
     return ("train.logger=tensorboard gets no videos here: torch's add_video needs moviepy 1 "
             "(pip install 'moviepy<2'); the mp4 files are in the run folder's videos/")
+
+
+def episode_records(episodes: list[TensorDictBase], first: int, acting: dict[str, float], random_actions: bool,
+                    normalize: Callable[[float], float]) -> list[dict]:
+    """One log record per episode of a collected batch, numbered from ``first + 1``: its outcome, the planner's
+    statistics ``acting`` (means over the batch, left out for random warm-up actions; its ``act_s``, the batch's
+    acting seconds, goes with the last record alone) and the return ``normalize``\ d where that is finite."""
+    acting = dict(acting)
+    act_s = acting.pop("act_s", None)
+    records = []
+    for i, episode in enumerate(episodes):
+        record = {"episode": first + i + 1, "length": episode.shape[0], **episode_outcome(episode),
+                  "random_actions": random_actions}
+        if "policy_influence" in episode.keys() and not random_actions:
+            record["policy_influence"] = float(episode["policy_influence"].mean())
+        normalized = normalize(record["task_return"])
+        if math.isfinite(normalized):
+            record["normalized_return"] = normalized
+        if not random_actions:
+            record.update(acting)
+        records.append(record)
+    if act_s is not None and not random_actions:
+        records[-1]["act_s"] = act_s
+    return records
 
 
 class RunLogger:
