@@ -45,7 +45,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _child_env import child_env  # noqa: E402
-from _intervals import bootstrap_ci, iqm  # noqa: E402
+from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm  # noqa: E402
 from _results import git_commit  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)

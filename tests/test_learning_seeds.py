@@ -266,7 +266,7 @@ def test_bootstrap_interval_and_iqm_by_hand():
     import sys
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from _intervals import bootstrap_ci, iqm
+    from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm
 
     assert bootstrap_ci([[1.0] * 20]) == (1.0, 1.0)  # nothing varies
     low, high = bootstrap_ci([[1.0] * 25 + [0.0] * 25])  # one seed: a binomial mean of 0.5 over 50 episodes
