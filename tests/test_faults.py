@@ -75,6 +75,30 @@ def test_a_config_file_of_an_older_version_with_planner_gamma_still_loads():
         ExperimentConfig.from_dict(data)
 
 
+#: A value other than the one the code now runs, per removed field.
+REMOVED_FIELD_OTHER_VALUES = {"planner.temperature_scale": "elite_spread"}
+
+
+def test_a_config_file_holding_removed_fields_loads_at_their_kept_values_and_names_them_otherwise(tmp_path):
+    from torchrl_mpail2.config import REMOVED_FIELDS
+    from torchrl_mpail2.trainers.config import read_run_config
+
+    assert set(REMOVED_FIELD_OTHER_VALUES) == set(REMOVED_FIELDS)
+    data = preset("point_mass").to_dict()
+    for name, (kept, _) in REMOVED_FIELDS.items():
+        section, field = name.split(".")
+        data[section][field] = kept  # a config.json written before the field was removed
+    (tmp_path / "config.json").write_text(json.dumps(data))
+    assert read_run_config(tmp_path) == preset("point_mass")
+    for name, other in REMOVED_FIELD_OTHER_VALUES.items():
+        section, field = name.split(".")
+        changed = {**data, section: {**data[section], field: other}}
+        (tmp_path / "config.json").write_text(json.dumps(changed))
+        with pytest.raises(ConfigError, match=rf"{name}={other!r}: the field was removed after commit "
+                                              rf"{REMOVED_FIELDS[name][1]}"):
+            read_run_config(tmp_path)
+
+
 @pytest.mark.parametrize("cls", [TrainConfig, ModelConfig, LossConfig, PlannerConfig])
 def test_every_numeric_config_field_declares_its_range(cls):
     from torchrl_mpail2.config import field_kind

@@ -231,20 +231,6 @@ def test_effective_number_of_elites_is_logged_between_one_and_k():
     assert 1.0 <= ess <= planner.cfg.num_elites
 
 
-def test_the_elite_spread_temperature_plans_to_the_goal_and_bad_names_are_refused():
-    from torchrl_mpail2.config import ConfigError
-
-    expected = GOAL - torch.tensor([[0.0, 0.0], [0.5, -0.3]])
-    errors = {}
-    for scale in ("absolute", "elite_spread"):  # a reward 1000 times smaller than the temperature is built for
-        planner, _ = known_planner(temperature_scale=scale, temperature=0.5, reward_scale=1e-3)
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            errors[scale] = (planner(obs([0.0, 0.0], [0.5, -0.3]))["action"] - expected).abs().max()
-    assert errors["elite_spread"] < 0.04 and errors["elite_spread"] < errors["absolute"] / 2, errors
-    with pytest.raises(ConfigError, match="temperature_scale 'spread'"):
-        PlannerConfig(temperature_scale="spread")
-
-
 def _twin_planners(**cfg):
     modules = tiny_modules(obs_dim=3, action_dim=2, horizon=3)
     settings = dict(num_candidates=32, num_elites=8, iterations=2, **cfg)

@@ -298,8 +298,6 @@ class LossConfig:
 TERMINAL_VALUES = ("policy_action", "plan_last_action")
 #: ``torch.compile`` modes of the plan scoring (:attr:`PlannerConfig.compile_mode`).
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs")
-#: How the MPPI temperature is measured (``PlannerConfig.temperature_scale``).
-TEMPERATURE_SCALES = ("absolute", "elite_spread")
 
 
 @dataclass
@@ -316,9 +314,6 @@ class PlannerConfig:
     """Number J of MPPI iterations."""
     temperature: float = 2.0
     """Softmax temperature eta of the elite weights."""
-    temperature_scale: str = "absolute"
-    """``absolute`` (Algorithm 2: eta in return units) or ``elite_spread`` (eta times the elites' return standard
-    deviation per planning step, so the weights ignore the reward's scale; not in the paper, not measured yet)."""
     std_min: float = 0.05
     """Lower clip sigma_min of the sampling std."""
     std_max: float = 2.0
@@ -357,9 +352,6 @@ class PlannerConfig:
             raise ConfigError(f"unknown PlannerConfig.terminal_value {self.terminal_value!r}; choose from {TERMINAL_VALUES}")
         if self.compile_mode not in COMPILE_MODES:
             raise ConfigError(f"unknown PlannerConfig.compile_mode {self.compile_mode!r}; choose from {COMPILE_MODES}")
-        if self.temperature_scale not in TEMPERATURE_SCALES:
-            raise ConfigError(f"unknown PlannerConfig.temperature_scale {self.temperature_scale!r}; "
-                              f"choose from {TEMPERATURE_SCALES}")
         if self.std_min > self.std_max:
             raise ConfigError(f"PlannerConfig.std_min ({self.std_min}) must not exceed std_max ({self.std_max})")
 
@@ -371,10 +363,28 @@ class PlannerConfig:
         return min(self.num_candidates, max(1, round(self.policy_fraction * self.num_candidates)))
 
 
+#: Fields removed with the extensions they switched on (measured, not adopted): ``section.field`` -> (the value the
+#: code now always runs, the last commit that had the field). Their results entries name the same commit.
+REMOVED_FIELDS: dict[str, tuple[object, str]] = {
+    "planner.temperature_scale": ("absolute", "7137cb5"),
+}
+
+
 def migrate_config_data(data: dict) -> dict:
     """A run config's JSON data (``{"train": ..., "model": ..., "loss": ..., "planner": ...}``) from an older
     version in today's fields: ``planner.gamma``, kept equal to ``loss.gamma`` until the discount got one home in
-    :class:`LossConfig`, is dropped, or refused by name where it differed."""
+    :class:`LossConfig`, is dropped, or refused by name where it differed; so is a field of :data:`REMOVED_FIELDS`
+    where it holds the value the code now runs (refused with the commit that last had it otherwise)."""
+    data = {section: dict(values) if isinstance(values, dict) else values for section, values in data.items()}
+    for name, (kept, commit) in REMOVED_FIELDS.items():
+        section, field = name.split(".")
+        values = data.get(section)
+        if not isinstance(values, dict) or field not in values:
+            continue
+        value = values.pop(field)
+        if value != kept:
+            raise ConfigError(f"{name}={value!r}: the field was removed after commit {commit} (an extension not "
+                              f"adopted; {kept!r} is what runs now); run this config from that commit")
     planner = dict(data.get("planner", {}))
     if "gamma" not in planner:
         return data

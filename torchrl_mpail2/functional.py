@@ -138,15 +138,10 @@ def gradient_penalty(critic, x_expert: Tensor, x_agent: Tensor, generator: torch
     return (norm - 1.0).pow(2).mean()
 
 
-def mppi_weights(returns: Tensor, num_elites: int, temperature: float, relative: bool = False) -> tuple[Tensor, Tensor]:
+def mppi_weights(returns: Tensor, num_elites: int, temperature: float) -> tuple[Tensor, Tensor]:
     r"""Softmax weights of the ``K`` best plans (Algorithm 2), max-subtracted so they never overflow.
 
     .. math:: w_k \propto \exp\big((\mathcal R_k - \max_j \mathcal R_j) / \eta\big)\ \text{for the K elites, } 0 \text{ otherwise}.
-
-    With ``relative`` the temperature is measured in units of the elites' return spread,
-    :math:`\eta\,\mathrm{std}_k(\mathcal R_k)` per batch entry (not in the paper): the weights then do not change
-    when the returns are rescaled, where an absolute :math:`\eta` gives near-uniform weights once the returns'
-    differences are small against it.
 
     Algorithm 2 writes "set non-elite returns to 0" before the softmax, which would still give them
     weight; the text's intent (non-elites do not contribute) is what is implemented.
@@ -155,7 +150,6 @@ def mppi_weights(returns: Tensor, num_elites: int, temperature: float, relative:
         returns (Tensor): plan returns ``[*B, N]``.
         num_elites (int): ``K``.
         temperature (float): ``eta``.
-        relative (bool): ``eta`` relative to the elites' return standard deviation. Defaults to False.
 
     Returns:
         tuple: ``(weights [*B, K], elite_index [*B, K])``; weights sum to one over ``K``.
@@ -166,11 +160,7 @@ def mppi_weights(returns: Tensor, num_elites: int, temperature: float, relative:
         ([2, 3], [0.7311, 0.2689])
     """
     elite_returns, elite_index = returns.topk(num_elites, dim=-1)
-    scale = temperature
-    if relative:
-        spread = elite_returns.std(-1, keepdim=True) if num_elites > 1 else torch.ones_like(elite_returns)
-        scale = temperature * spread.clamp_min(torch.finfo(elite_returns.dtype).tiny)
-    logits = (elite_returns - elite_returns[..., :1]) / scale
+    logits = (elite_returns - elite_returns[..., :1]) / temperature
     return torch.softmax(logits, dim=-1), elite_index
 
 

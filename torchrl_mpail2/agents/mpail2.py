@@ -171,7 +171,8 @@ class MPAIL2Agent:
             raise ValueError(f"transfer must be one of {sorted(TRANSFER_PARTS)}, got {transfer!r}")
         state = ckpt.read_checkpoint(path)
         if config is not None and isinstance(state.get("config"), dict):
-            ckpt.check_compatible(migrate_config_data(state["config"]), config, Path(path), ignore=("train.env",))
+            # network fields only: a removed loss or planner field does not stop the weights' transfer
+            ckpt.check_compatible(state["config"], config, Path(path), ignore=("train.env",))
         weights = state["modules"]
         for part in TRANSFER_PARTS[transfer]:
             prefix = part + "."

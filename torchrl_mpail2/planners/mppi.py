@@ -319,8 +319,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
                     pi_returns = returns[:, num_gauss:]
                 else:
                     returns = torch.cat([score(z, plans[:, :num_gauss], heads), pi_returns], 1)
-                weights, elite_index = mppi_weights(returns, cfg.num_elites, cfg.temperature,
-                                                    relative=cfg.temperature_scale == "elite_spread")
+                weights, elite_index = mppi_weights(returns, cfg.num_elites, cfg.temperature)
                 elites = plans.gather(1, elite_index[..., None, None].expand(-1, -1, self.horizon, self.action_dim))
                 w = weights[..., None, None]
                 mean = (w * elites).sum(1)
