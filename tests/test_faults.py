@@ -76,7 +76,7 @@ def test_a_config_file_of_an_older_version_with_planner_gamma_still_loads():
 
 
 #: A value other than the one the code now runs, per removed field.
-REMOVED_FIELD_OTHER_VALUES = {"planner.temperature_scale": "elite_spread"}
+REMOVED_FIELD_OTHER_VALUES = {"planner.temperature_scale": "elite_spread", "loss.expert_start_fraction": 0.5}
 
 
 def test_a_config_file_holding_removed_fields_loads_at_their_kept_values_and_names_them_otherwise(tmp_path):

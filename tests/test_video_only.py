@@ -6,7 +6,7 @@ from tensordict import TensorDict
 from torchrl.data import Bounded, Composite, Unbounded
 
 from conftest import TINY
-from torchrl_mpail2 import LossConfig, ModelConfig
+from torchrl_mpail2 import ModelConfig
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data import demos_from_arrays
 
@@ -74,11 +74,6 @@ def test_demos_lacking_a_key_the_reward_reads_are_refused_by_name(model, message
     # a fused latent with partial demos encodes only the demos' keys: the learner would lose the others
     with pytest.raises(KeyError, match=message):
         MPAIL2Agent(*_specs(), _model(**model), demos=_demos(), observation_keys=list(KEYS))
-
-
-def test_expert_starts_need_every_key():
-    with pytest.raises(ValueError, match=r"expert_start_fraction=0.5 .* lack \['proprio'\]"):
-        MPAIL2Agent(*_specs(), _model(), LossConfig(expert_start_fraction=0.5), demos=_demos())
 
 
 def test_with_keys_keeps_the_episodes_and_names_unknown_keys():

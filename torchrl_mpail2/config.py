@@ -248,12 +248,6 @@ class LossConfig:
     transitions_per_window: int | None = None
     """Random transitions of each replayed ``T``-step window that the reward, value and actor objectives use
     (None: all of them). The dynamics objective always uses whole windows. Their cost scales with it."""
-    expert_start_fraction: float = 0.0
-    """Expert latents added to the value's and the actor's replayed start latents, as a share of the batch's expert
-    pairs (0: the paper, replay only; 0.5 adds half as many as there are replayed ones). From an expert latent ``z_e`` the value regresses ``Q(z_e, a)`` onto the model's
-    target for the policy's action ``a`` (``r(z_e, f(z_e, a)) + gamma G(f(z_e, a))``, no recorded action needed) and
-    the actor maximises its imagined return there, so that value and policy learn the expert's states before the
-    agent reaches them. A departure from the paper (entry 21 of docs/implementation_details.md); model-based only."""
     tau: float = 0.01
     """Polyak coefficient of the target Q-ensemble."""
     init_alpha: float = 1e-3
@@ -278,7 +272,7 @@ class LossConfig:
     RANGES: ClassVar[dict[str, Range]] = {
         "gamma": UNIT_INTERVAL, "lmbda": UNIT_INTERVAL, "rho": OPEN_UNIT_INTERVAL, "gp_coef": NON_NEGATIVE,
         "reward_scale_momentum": Range(0.0, 1.0, high_open=True), "transitions_per_window": AT_LEAST_ONE,
-        "tau": UNIT_INTERVAL, "expert_start_fraction": UNIT_INTERVAL, "init_alpha": POSITIVE,
+        "tau": UNIT_INTERVAL, "init_alpha": POSITIVE,
         "target_entropy_per_step": FINITE, "lr": POSITIVE, "encoder_lr": POSITIVE, "alpha_lr": NON_NEGATIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
     }
 
@@ -367,6 +361,7 @@ class PlannerConfig:
 #: code now always runs, the last commit that had the field). Their results entries name the same commit.
 REMOVED_FIELDS: dict[str, tuple[object, str]] = {
     "planner.temperature_scale": ("absolute", "7137cb5"),
+    "loss.expert_start_fraction": (0.0, "7137cb5"),
 }
 
 

@@ -86,10 +86,6 @@ class MPAIL2Agent:
         model = dataclasses.replace(model, horizon=policy_horizon, policy_horizon=policy_horizon)
         self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
                                            demos=demos).to(device)
-        if demos is not None and loss.expert_start_fraction and self.modules.demo_keys_missing(demos):
-            raise ValueError(f"loss.expert_start_fraction={loss.expert_start_fraction} starts imagined rollouts from "
-                             f"expert latents, which need every observation key; the demonstrations lack "
-                             f"{self.modules.demo_keys_missing(demos)}")
         if self.switches.world_model:
             self.loss = MPAIL2Loss(self.modules, loss)
             self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=update_precision == "bf16_stop_gradient",

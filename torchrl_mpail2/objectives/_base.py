@@ -148,23 +148,6 @@ class MPAIL2LossBase(LossModule):
         (:meth:`~torchrl_mpail2.modules.MPAIL2Modules.demo_keys_missing`)."""
         return self._pair_latents(td, self._prefix(self.tensor_keys.expert), partial=not self.encoder_network.net.fuse_latent)
 
-    @staticmethod
-    def checked_start_fraction(fraction: float) -> float:
-        """``expert_start_fraction`` as a float, refused outside [0, 1] (checked once, when a loss is built)."""
-        if not 0.0 <= float(fraction) <= 1.0:
-            raise ValueError(f"expert_start_fraction must lie in [0, 1], got {fraction}")
-        return float(fraction)
-
-    def expert_starts(self, td: TensorDictBase, fraction: float, expert_latents=None) -> Tensor | None:
-        """Stop-gradient latents ``[k, Z]`` of the first ``round(fraction * n)`` of the batch's ``n`` expert
-        observations (at least one when ``fraction > 0``; from ``expert_latents`` where the composite encoded them
-        already), or None when ``fraction`` is 0."""
-        if fraction == 0:
-            return None
-        z = (expert_latents if expert_latents is not None else self.expert_latents(td))[0]
-        z = z.reshape(-1, z.shape[-1])
-        return z[: max(1, round(fraction * z.shape[0]))]
-
     def reduce(self, x: Tensor) -> Tensor:
         if self.reduction == "mean":
             return x.mean()

@@ -28,14 +28,11 @@ class MultiStepActorLoss(MPAIL2LossBase):
     :math:`\bar{\mathcal H} = -|\mathcal A|` applies per step (Table 4). Dynamics, reward and Q are
     evaluated with frozen parameters: gradients reach only the policy (and ``log_alpha`` through
     ``loss_alpha``). ``G`` uses the online Q, mean (or ``q_reduce="min"``) of two random heads.
-    With ``expert_start_fraction`` > 0 (not in the paper) that share of the batch's expert latents joins the replayed
-    start latents.
 
     Keyword Args:
         gamma, lmbda (float): as in Eq. 6. return_form (str): form of the imagined return, one of ``RETURN_FORMS``.
         q_reduce (str): ``mean`` (default) or ``min`` of the two Q heads in ``G``. init_alpha (float): initial temperature.
         target_entropy_per_step (float, optional): default ``-A``.
-        expert_start_fraction (float): share of expert latents as start states (0: the paper).
 
     Returns: ``loss_actor``, ``loss_alpha`` and detached ``alpha``, ``entropy`` (per step, ``-log pi / H``),
     ``target_entropy`` (per step) and ``imagined_return``.
@@ -50,8 +47,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
                  gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", q_reduce: str = "mean",
                  init_alpha: float = 1e-3,
-                 target_entropy_per_step: float | None = None, expert_start_fraction: float = 0.0,
-                 reduction: str = "mean"):
+                 target_entropy_per_step: float | None = None, reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.policy_network = policy_network
         self.__dict__["dynamics_network"] = dynamics_network  # evaluated frozen, never trained here
@@ -63,14 +59,10 @@ class MultiStepActorLoss(MPAIL2LossBase):
         self.gamma, self.lmbda = gamma, lmbda
         self.return_form = _checked_form(return_form)
         self.q_reduce = q_reduce
-        self.expert_start_fraction = self.checked_start_fraction(expert_start_fraction)
 
-    def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
+    def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
         z = latents[0] if latents is not None else self.replay_latents(tensordict)[0]
         z = z.reshape(-1, z.shape[-1])
-        ze = self.expert_starts(tensordict, self.expert_start_fraction, expert_latents)
-        if ze is not None:
-            z = torch.cat([z, ze])
         policy = self.policy_network.net
         plan, log_prob = policy(z)
         log_prob_step = log_prob / policy.horizon

@@ -53,7 +53,7 @@ class StagedLoss(MPAIL2LossBase):
                 yielded (the updater's bf16 autocast).
         """
         windows, transitions = self.stage_batches(tensordict, policy_tensordict)
-        latents = extra = None
+        latents = None
         for stage in self.stages:
             sub = getattr(self, f"{stage}_loss")
             if stage in WINDOW_STAGES:
@@ -64,12 +64,8 @@ class StagedLoss(MPAIL2LossBase):
                     transitions = sample_window_transitions(transitions, self.cfg.transitions_per_window)
                     with precision():
                         latents = self.replay_latents(transitions)
-                        # the expert's latents, encoded once for every stage that reads them (reward, and value
-                        # and actor with ``expert_start_fraction``); otherwise the reward stage encodes its own
-                        extra = ({"expert_latents": self.expert_latents(transitions)}
-                                 if self.cfg.expert_start_fraction else {})
                 with precision():
-                    out = sub(transitions, latents=latents, **extra)
+                    out = sub(transitions, latents=latents)
             yield stage, out
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

@@ -118,9 +118,6 @@ class DACLoss(StagedLoss):
 
     def __init__(self, modules, cfg: LossConfig | None = None):
         cfg = cfg or LossConfig()
-        if cfg.expert_start_fraction:
-            raise ValueError("LossConfig.expert_start_fraction needs the latent dynamics (imagined transitions from "
-                             "the expert's states); the model-free losses have none: set it to 0")
         super().__init__(modules.encoder)
         self.cfg = cfg
         self.__dict__["components"] = modules

@@ -57,13 +57,11 @@ class MPAIL2Loss(StagedLoss):
                                                  scale_momentum=cfg.reward_scale_momentum)
         self.value_loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                                 lmbda=cfg.lmbda, return_form=cfg.return_form,
-                                                mask_terminal=cfg.mask_terminal, head_reduce=cfg.value_head_reduce,
-                                                expert_start_fraction=cfg.expert_start_fraction)
+                                                mask_terminal=cfg.mask_terminal, head_reduce=cfg.value_head_reduce)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                              lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
                                              init_alpha=cfg.init_alpha,
-                                             target_entropy_per_step=cfg.target_entropy_per_step,
-                                             expert_start_fraction=cfg.expert_start_fraction)
+                                             target_entropy_per_step=cfg.target_entropy_per_step)
 
     @property
     def log_alpha(self) -> torch.nn.Parameter:

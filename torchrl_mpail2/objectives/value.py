@@ -25,10 +25,6 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
     :math:`d` the termination flag when ``mask_terminal`` is set. Eq. 4 calls the target
     entropy-regularised, but Eq. 6 has no entropy term; Eq. 6 is followed.
 
-    With ``expert_start_fraction`` > 0 (not in the paper) that share of the batch's expert latents :math:`z_e` joins
-    the replayed ones: :math:`a \sim \pi_\phi(z_e)` (first step of a plan), :math:`z' = f_\psi(z_e, a)`, and
-    :math:`Q(z_e, a)` regresses onto the same target with that imagined transition.
-
     Args:
         encoder_network, dynamics_network, reward_network, qvalue_network, policy_network: the MPAIL2 modules.
 
@@ -37,7 +33,6 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         return_form (str): form of the imagined return, one of ``RETURN_FORMS`` (``"paper"``: Eq. 6 as printed).
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
         head_reduce (str): ``"sum"`` (Eq. 4) or ``"mean"`` over the ensemble heads.
-        expert_start_fraction (float): share of expert latents as imagined start states (0: the paper).
 
     With ``bf16_stop_gradient`` set (the updater's bf16 modes) the target's imagined rollout runs under bfloat16
     autocast; the return itself is float32.
@@ -58,7 +53,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
                  gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", mask_terminal: bool = False,
-                 head_reduce: str = "sum", expert_start_fraction: float = 0.0, reduction: str = "mean"):
+                 head_reduce: str = "sum", reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.__dict__["dynamics_network"] = dynamics_network  # read only: kept out of this loss's parameters
         self.__dict__["reward_network"] = reward_network
@@ -67,7 +62,6 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         if head_reduce not in ("sum", "mean"):
             raise ValueError(f"head_reduce must be 'sum' or 'mean', got {head_reduce!r}")
         self.gamma, self.lmbda, self.mask_terminal, self.head_reduce = gamma, lmbda, mask_terminal, head_reduce
-        self.expert_start_fraction = self.checked_start_fraction(expert_start_fraction)
         self.return_form = _checked_form(return_form)
 
     @torch.no_grad()
@@ -84,20 +78,12 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
             G = G * (~terminated.reshape(G.shape)).to(G.dtype)
         return r + self.gamma * G, r
 
-    def forward(self, tensordict: TensorDictBase, latents=None, expert_latents=None) -> TensorDictBase:
+    def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:
         z, z_next = latents if latents is not None else self.replay_latents(tensordict)
         z, z_next = z.reshape(-1, z.shape[-1]), z_next.reshape(-1, z_next.shape[-1])
         action = self.require(tensordict, self.tensor_keys.action)
         action = action.reshape(-1, action.shape[-1])
         terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
-        ze = self.expert_starts(tensordict, self.expert_start_fraction, expert_latents)
-        if ze is not None:  # imagined transitions from the expert's states, with the policy's actions
-            with torch.no_grad():
-                expert_action = self.policy_network.net(ze)[0][..., 0, :].to(ze.dtype)
-                ze_next = self.dynamics_network.module(ze, expert_action)
-            z, z_next, action = torch.cat([z, ze]), torch.cat([z_next, ze_next]), torch.cat([action, expert_action])
-            if terminated is not None:
-                terminated = torch.cat([terminated.reshape(-1, 1), terminated.new_zeros(ze.shape[0], 1)])
         y, r = self.target(z, z_next, terminated)
         q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
         errors = (q - y).pow(2)  # [E, M]: each head regresses independently
