@@ -3,9 +3,7 @@
 Each (configuration, variant) runs in its own fresh process, the variants interleaved round after round,
 because the malloc setting of :func:`~torchrl_mpail2.agents.update.retain_freed_memory` is process-wide.
 Variants: ``initial`` (the code before the speed work, see ``_reference.py``), ``optimised`` (the package
-as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False``), ``optimised_bf16_stop_gradient``
-(the package with the opt-in ``bf16_stop_gradient=True``: stop-gradient encodes and the value target's
-imagined rollout under bf16 autocast), ``one_transition_per_window`` and ``one_transition_per_window_bf16``
+as it is), ``optimised_default_malloc`` (the package with ``retain_memory=False``), ``one_transition_per_window``
 (``LossConfig(transitions_per_window=1)``: the reward, value and actor stages on one random transition of each
 window, i.e. B transitions rather than B x T; the dynamics stage unchanged), ``optimised_mixed_bf16`` and
 ``one_transition_per_window_mixed_bf16`` (``MPAIL2Updater(bf16=True)``: every stage's forward pass under bf16
@@ -40,8 +38,7 @@ from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
 
 COMPILED = "_compiled"
 SYNC_FREE = "_sync_free"
-VARIANTS = ("initial", "optimised", "optimised_default_malloc", "optimised_bf16_stop_gradient",
-            "one_transition_per_window", "one_transition_per_window_bf16", "optimised_mixed_bf16",
+VARIANTS = ("initial", "optimised", "optimised_default_malloc", "one_transition_per_window", "optimised_mixed_bf16",
             "one_transition_per_window_mixed_bf16")
 #: (label, callable path) timed inside one update, in the order the update runs them.
 STAGE_CALLS = (("dynamics loss", "loss.dynamics_loss.forward"), ("latents (replay + expert)", "loss.replay_latents"),
@@ -102,7 +99,6 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
         context = contextlib.nullcontext()
     with context:
         updater = MPAIL2Updater(loss, retain_memory=variant != "initial" and variant != "optimised_default_malloc",
-                                bf16_stop_gradient=variant.endswith(("bf16_stop_gradient", "window_bf16")),
                                 bf16=variant.endswith("mixed_bf16"), sync_free_skips=True if sync_free else None)
         t = time.perf_counter()
         updater.update(td)  # warm-up: optimiser state, allocator (and compilation)

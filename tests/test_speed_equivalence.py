@@ -258,13 +258,13 @@ def test_update_matches_per_loss_calls(contiguous, images):
         torch.testing.assert_close(a, b, atol=1e-6, rtol=1e-5)
 
 
-def test_bf16_stop_gradient_is_opt_in_and_close():
+def test_bf16_updates_encode_stop_gradient_latents_close_and_return_them_in_float32():
     m, td = _update_case(contiguous=True, images=False)
     loss = MPAIL2Loss(m)
     z32 = loss.replay_latents(td)[0]
     MPAIL2Updater(loss, retain_memory=False)
     assert not loss.reward_loss.bf16_stop_gradient  # default: float32 latents, unchanged results
-    MPAIL2Updater(loss, retain_memory=False, bf16_stop_gradient=True)
+    MPAIL2Updater(loss, retain_memory=False, bf16=True)
     assert all(sub.bf16_stop_gradient for sub in (loss, loss.dynamics_loss, loss.value_loss, loss.actor_loss))
     z16 = loss.replay_latents(td)[0]
     assert z16.dtype == torch.float32 and not torch.equal(z16, z32)

@@ -45,7 +45,7 @@ class MPAIL2Agent:
         ablation (str): a Table 2 name resolved by :func:`~torchrl_mpail2.agents.switches.switches_for`
             (``"none"``: MPAIL2). Ignored when ``switches`` is given.
         switches (AgentSwitches, optional): the parts to use, directly.
-        update_precision (str): ``float32`` | ``bf16_stop_gradient`` | ``bf16`` (see :class:`MPAIL2Updater`) |
+        update_precision (str): ``float32`` | ``bf16`` (see :class:`MPAIL2Updater`) |
             ``auto`` (``bf16`` where the device runs it natively, else ``float32``: :func:`resolve_update_precision`).
         demos (Demonstrations, optional): set the observation normalisation from the demonstrations and encode
             their keys.
@@ -88,8 +88,7 @@ class MPAIL2Agent:
                                            demos=demos).to(device)
         if self.switches.world_model:
             self.loss = MPAIL2Loss(self.modules, loss)
-            self.updater = MPAIL2Updater(self.loss, bf16_stop_gradient=update_precision == "bf16_stop_gradient",
-                                         bf16=update_precision == "bf16")
+            self.updater = MPAIL2Updater(self.loss, bf16=update_precision == "bf16")
             self.planner = LatentMPPIPlanner(self.modules, action_spec, planner, gamma=loss.gamma)
         else:
             self.loss, self.planner = DACLoss(self.modules, loss), None

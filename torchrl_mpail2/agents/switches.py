@@ -19,7 +19,7 @@ ACTORS = ("planner", "policy")
 POLICY_DATA = ("replay", "latest_episode")
 #: Precisions of the model-based update (see :class:`~torchrl_mpail2.agents.update.MPAIL2Updater`); ``auto`` is
 #: ``bf16`` where the device runs bfloat16 natively and ``float32`` elsewhere (:func:`resolve_update_precision`).
-UPDATE_PRECISIONS = ("float32", "bf16_stop_gradient", "bf16", "auto")
+UPDATE_PRECISIONS = ("float32", "bf16", "auto")
 
 
 def runs_bf16_natively(device: torch.device | str = "cpu") -> bool:

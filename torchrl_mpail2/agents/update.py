@@ -72,15 +72,12 @@ class MPAIL2Updater:
 
     Keyword Args:
         retain_memory (bool): call :func:`retain_freed_memory` (process-wide; Linux/glibc only). Defaults to True.
-        bf16_stop_gradient (bool): run the stop-gradient computations under bfloat16 autocast: the encodes of the
-            dynamics loss's targets and of the replay and expert latents, and the value target's imagined rollout.
-            Faster (mostly with cameras), but latents and targets move by about 1e-2 (relative). Everything that
-            carries gradients stays in float32. Defaults to False (float32 throughout).
         bf16 (bool): mixed precision for the whole update: each stage's forward pass (gradient penalty and
             stop-gradient parts included) runs under bfloat16 autocast, exited before the backward pass and the
-            optimiser step; parameters, gradients, Adam's moments and the Polyak targets stay float32. Implies
-            ``bf16_stop_gradient``. 2-3x faster on CPUs with AVX-512 bf16 (docs/results/speed/speed_notes.md); losses
-            move by up to about 2% (relative) on the test batches. Defaults to False.
+            optimiser step; parameters, gradients, Adam's moments and the Polyak targets stay float32; the losses'
+            stop-gradient latents and value targets come back in float32 (``MPAIL2LossBase.bf16_stop_gradient``).
+            2-3x faster on CPUs with AVX-512 bf16 (docs/results/speed/speed_notes.md); losses move by up to about 2%
+            (relative) on the test batches. Defaults to False (float32 throughout).
         sync_free_skips (bool, optional): skip not-finite stages without a host synchronisation (fused Adam, which
             takes the flag on the device). Defaults to None: on where the parameters are on a CUDA device; on a CPU a
             synchronisation costs nothing and the default Adam is kept.
@@ -100,18 +97,17 @@ class MPAIL2Updater:
         ['loss_actor', 'loss_alpha', 'loss_dynamics', 'loss_reward', 'loss_value']
     """
 
-    def __init__(self, loss: StagedLoss, *, retain_memory: bool = True, bf16_stop_gradient: bool = False,
-                 bf16: bool = False, sync_free_skips: bool | None = None):
+    def __init__(self, loss: StagedLoss, *, retain_memory: bool = True, bf16: bool = False,
+                 sync_free_skips: bool | None = None):
         if retain_memory:
             retain_freed_memory()
         self.loss = loss
         self.bf16 = bf16
         self.device_type = next(loss.parameters()).device.type
         self.sync_free_skips = self.device_type == "cuda" if sync_free_skips is None else sync_free_skips
-        bf16_stop_gradient = bf16_stop_gradient or bf16
         for module in loss.modules():
             if isinstance(module, MPAIL2LossBase):
-                module.bf16_stop_gradient = bf16_stop_gradient
+                module.bf16_stop_gradient = bf16
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.max_grad_norm: dict[str, float | None] = {}
         for stage, groups in loss.param_groups().items():

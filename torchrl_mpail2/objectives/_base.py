@@ -62,8 +62,8 @@ class MPAIL2LossBase(LossModule):
     tensor_keys: _AcceptedKeys
     default_keys = _AcceptedKeys
     encoder_network: ObservationEncoder
-    #: Encode stop-gradient latents (computed with gradients disabled) under bfloat16 autocast. Off by
-    #: default: it changes the latents by about 1e-2; ``MPAIL2Updater(..., bf16_stop_gradient=True)`` sets it.
+    #: Encode stop-gradient latents (computed with gradients disabled) under bfloat16 autocast, returned in float32.
+    #: Off by default: it changes the latents by about 1e-2; ``MPAIL2Updater(..., bf16=True)`` sets it.
     bf16_stop_gradient: bool = False
 
     def __init__(self, encoder_network: ObservationEncoder, reduction: str = "mean"):

@@ -34,7 +34,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
         head_reduce (str): ``"sum"`` (Eq. 4) or ``"mean"`` over the ensemble heads.
 
-    With ``bf16_stop_gradient`` set (the updater's bf16 modes) the target's imagined rollout runs under bfloat16
+    With ``bf16_stop_gradient`` set (the updater's bf16 mode) the target's imagined rollout runs under bfloat16
     autocast; the return itself is float32.
 
     Parameters: ``qvalue_network_params`` and ``target_qvalue_network_params`` (update the latter with

@@ -143,10 +143,9 @@ class TrainConfig:
     of one CPU core each time); false leaves them out (``python -m torchrl_mpail2.trainers.plots RUN_DIR`` draws
     them from the logs at any time)."""
     update_precision: str = "float32"
-    """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16_stop_gradient (bf16 autocast for the
-    computations without gradients) | bf16 (mixed precision: every stage's forward in bf16, float32 weights and
-    optimiser) | auto (bf16 where the device runs bfloat16 natively, float32 elsewhere; the saved config records the
-    choice). See docs/results/speed/speed_notes.md for speed and closeness."""
+    """Precision of the learner's update (``MPAIL2Updater``): float32 | bf16 (mixed precision: every stage's forward
+    in bf16, float32 weights and optimiser) | auto (bf16 where the device runs bfloat16 natively, float32 elsewhere;
+    the saved config records the choice). See docs/results/speed/speed_notes.md for speed and closeness."""
 
     RANGES: ClassVar[dict[str, Range]] = {
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
