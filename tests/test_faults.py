@@ -97,6 +97,10 @@ def test_a_config_file_holding_removed_fields_loads_at_their_kept_values_and_nam
         with pytest.raises(ConfigError, match=rf"{name}={other!r}: the field was removed after commit "
                                               rf"{REMOVED_FIELDS[name][1]}"):
             read_run_config(tmp_path)
+    data["train"]["update_precision"] = "bf16_stop_gradient"  # a removed value of a field that stays
+    (tmp_path / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ConfigError, match="update_precision='bf16_stop_gradient' was removed after commit 7137cb5"):
+        read_run_config(tmp_path)
 
 
 @pytest.mark.parametrize("cls", [TrainConfig, ModelConfig, LossConfig, PlannerConfig])

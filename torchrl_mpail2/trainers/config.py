@@ -187,6 +187,10 @@ class TrainConfig:
                               "the run could not use the extra environments (each collects whole episodes)")
         if self.eval_acting not in ACTING:
             raise ConfigError(f"unknown TrainConfig.eval_acting {self.eval_acting!r}; choose from {sorted(ACTING)}")
+        if self.update_precision == "bf16_stop_gradient":
+            raise ConfigError("update_precision='bf16_stop_gradient' was removed after commit 7137cb5 (an option not "
+                              "adopted; 'bf16' runs the whole update in mixed precision); run this config from that "
+                              f"commit, or choose from {UPDATE_PRECISIONS}")
         if self.update_precision not in UPDATE_PRECISIONS:
             raise ConfigError(f"unknown update_precision {self.update_precision!r}; choose from {UPDATE_PRECISIONS}")
         if self.update_precision not in ("float32", "auto") and not ABLATIONS[self.ablation].world_model:
