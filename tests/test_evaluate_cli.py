@@ -8,7 +8,7 @@ import torch
 from conftest import flip_a_byte, train_short_run
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data.checkpoint import MANIFEST_FILE, STATE_FILE, CheckpointError
-from torchrl_mpail2.evaluate import AGENT_KEYS, evaluate_checkpoint, export_agent, main
+from torchrl_mpail2.evaluate import AGENT_KEYS, LOCAL_PATHS, evaluate_checkpoint, export_agent, main
 from torchrl_mpail2.trainers.evaluation import HELD_OUT_SEED_OFFSET
 
 
@@ -22,6 +22,7 @@ def test_an_exported_agent_is_smaller_and_plays_as_its_checkpoint(run, tmp_path)
     out = export_agent(source, tmp_path / "agent")
     state = torch.load(out / STATE_FILE, weights_only=False)
     assert set(state) <= set(AGENT_KEYS) and "updater" not in state and "rng" not in state
+    assert all(state["config"]["train"][key] is None for key in LOCAL_PATHS)  # no folders of this machine
     assert (out / STATE_FILE).stat().st_size < (source / STATE_FILE).stat().st_size
     assert json.loads((out / MANIFEST_FILE).read_text())["episodes"] == 2
     shipped, trained = (evaluate_checkpoint(path, episodes=3) for path in (out, source))

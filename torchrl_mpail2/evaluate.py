@@ -32,12 +32,16 @@ from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, ev
                                                 evaluation_seeds, run_eval_seed, summarize_outcomes)
 from torchrl_mpail2.trainers.intervals import bootstrap_ci
 
-__all__ = ["AGENT_KEYS", "evaluate_checkpoint", "export_agent"]
+__all__ = ["AGENT_KEYS", "LOCAL_PATHS", "evaluate_checkpoint", "export_agent"]
 
 #: What an agent-only checkpoint keeps of a training checkpoint: all :meth:`MPAIL2Agent.from_checkpoint` reads,
 #: and what the run had done when it was written.
 AGENT_KEYS = ("modules", "loss", "planner", "observation_keys", "config", "counters", "best_eval", "run_wall_s",
               "demos_sha256")
+
+
+#: Fields of the ``train`` section an exported agent leaves empty: folders of the machine it was trained on.
+LOCAL_PATHS = ("run_dir", "demos")
 
 
 def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool = True,
@@ -84,7 +88,8 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
 
 
 def export_agent(source: str | Path, out: str | Path) -> Path:
-    """Writes the agent of the checkpoint ``source`` alone (:data:`AGENT_KEYS`) as the checkpoint folder ``out``.
+    """Writes the agent of the checkpoint ``source`` alone (:data:`AGENT_KEYS`) as the checkpoint folder ``out``,
+    its config without the training machine's folders (:data:`LOCAL_PATHS`).
 
     Raises:
         CheckpointError: ``source`` is missing or damaged, or holds no agent (the message names what it lacks).
@@ -97,7 +102,10 @@ def export_agent(source: str | Path, out: str | Path) -> Path:
     missing = [key for key in ("modules", "loss", "config") if key not in state]
     if missing:
         raise ckpt.CheckpointError(f"{source} holds no agent: it lacks {missing}")
-    return ckpt.write_checkpoint(out, {key: state[key] for key in AGENT_KEYS if key in state})
+    agent = {key: state[key] for key in AGENT_KEYS if key in state}
+    # this machine's folders mean nothing elsewhere (the demonstrations stay identified by their sha256)
+    agent["config"] = {**agent["config"], "train": {**agent["config"]["train"], **dict.fromkeys(LOCAL_PATHS)}}
+    return ckpt.write_checkpoint(out, agent)
 
 
 def _describe(result: dict) -> str:
