@@ -22,7 +22,7 @@ import torch
 from torchrl_mpail2.objectives.imagination import ensemble_estimate, frozen, imagined_lambda_return
 from torchrl_mpail2.trainers import MPAIL2Trainer
 from torchrl_mpail2.data import checkpoint as ckpt
-from torchrl_mpail2.trainers.config import ExperimentConfig
+from torchrl_mpail2.config import ExperimentConfig
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 OBJECTIVES = ("actor", "deterministic_lambda", "deterministic_planner")

@@ -36,12 +36,12 @@ from _common import machine, median_ms, random_observations  # noqa: E402
 
 from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, ModelConfig, PlannerConfig  # noqa: E402
 from torchrl_mpail2.modules import MPAIL2Modules  # noqa: E402
-from torchrl_mpail2.trainers.presets import PRESETS  # noqa: E402
+from torchrl_mpail2.config import preset  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: name -> (model, planner, observation shapes, action dim, description)
 SETTINGS = {
-    "lift_state": (PRESETS["lift_state"]().model, PRESETS["lift_state"]().planner,
+    "lift_state": (preset("lift_state").model, preset("lift_state").planner,
                    {"proprio": [27], "object": [10]}, 4, "the lift_state preset (CPU networks, N 256, K 32, J 4)"),
     "paper": (ModelConfig(latent_dim=512, hidden_dims=(512, 512)), PlannerConfig(), {"proprio": [26], "object": [10]},
               4, "Table 4 networks (latent 512, hidden [512, 512]) and planner (N 512, K 64, J 5, H 7)"),

@@ -360,7 +360,7 @@ def _config_differences(a: dict, b: dict, prefix: str = "") -> list[str]:
 def _as_read_today(config: dict) -> dict:
     """A saved configuration as this code resumes it: fields added since it was saved take their defaults (which keep
     the earlier behaviour), renamed ones their new names."""
-    from torchrl_mpail2.trainers.config import ExperimentConfig
+    from torchrl_mpail2.config import ExperimentConfig
 
     return json.loads(json.dumps(ExperimentConfig.from_dict(config).to_dict()))
 

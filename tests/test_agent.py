@@ -76,9 +76,9 @@ def test_bad_agent_settings_are_refused_by_name():
 def test_a_bf16_planner_on_a_device_without_native_bf16_warns_by_setting_name(native, monkeypatch):
     import warnings
 
-    from torchrl_mpail2.agents import switches
+    from torchrl_mpail2.config import ablations
 
-    monkeypatch.setattr(switches, "runs_bf16_natively", lambda device="cpu": native)
+    monkeypatch.setattr(ablations, "runs_bf16_natively", lambda device="cpu": native)
     env = make_env("point_mass")
     bf16_planner = PlannerConfig(num_candidates=16, num_elites=4, iterations=2, bf16=True)
     with warnings.catch_warnings(record=True) as caught:

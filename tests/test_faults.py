@@ -81,7 +81,7 @@ REMOVED_FIELD_OTHER_VALUES = {"planner.temperature_scale": "elite_spread", "loss
 
 def test_a_config_file_holding_removed_fields_loads_at_their_kept_values_and_names_them_otherwise(tmp_path):
     from torchrl_mpail2.config import REMOVED_FIELDS
-    from torchrl_mpail2.trainers.config import read_run_config
+    from torchrl_mpail2.config import read_run_config
 
     assert set(REMOVED_FIELD_OTHER_VALUES) == set(REMOVED_FIELDS)
     data = preset("point_mass").to_dict()

@@ -139,7 +139,7 @@ def test_the_command_line_imports_into_a_demo_folder(recording, tmp_path, capsys
 
 def test_a_saved_config_keeps_the_source_prefix_with_an_absolute_path(tmp_path):
     from torchrl_mpail2.trainers import ExperimentConfig
-    from torchrl_mpail2.trainers.config import resolve_for_run
+    from torchrl_mpail2.config import resolve_for_run
 
     cfg = ExperimentConfig()
     cfg.train.demos = "robosuite_hdf5:teleop/demo.hdf5"

@@ -2,9 +2,8 @@ import json
 
 import pytest
 
-from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.config import PRESETS, ConfigError, preset
 from torchrl_mpail2.train import main
-from torchrl_mpail2.trainers.presets import PRESETS, preset
 
 
 def printed_config(capsys, argv):
@@ -43,7 +42,7 @@ def test_a_bad_field_value_or_run_folder_is_one_line_and_status_2(capsys, argv, 
 
 def test_help_config_lists_every_field_with_its_type_value_and_docstring(capsys):
     from torchrl_mpail2.config import field_docs
-    from torchrl_mpail2.trainers.config import TrainConfig
+    from torchrl_mpail2.config import TrainConfig
 
     assert main(["--preset", "push_video_only", "--help-config"]) is None
     out = capsys.readouterr().out

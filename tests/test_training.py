@@ -117,7 +117,7 @@ def test_bad_configs_fail_before_training():
 
 def test_the_policy_horizon_is_derived_saved_and_checked():
     from torchrl_mpail2.agents import MPAIL2Agent
-    from torchrl_mpail2.trainers.config import resolve_for_run
+    from torchrl_mpail2.config import resolve_for_run
 
     cfg = preset("point_mass")
     assert cfg.model.policy_horizon is None
@@ -138,10 +138,10 @@ def test_the_policy_horizon_is_derived_saved_and_checked():
 
 @pytest.mark.parametrize("native", [False, True])
 def test_auto_update_precision_is_resolved_for_the_machine_and_saved(native, monkeypatch):
-    from torchrl_mpail2.agents import switches
-    from torchrl_mpail2.trainers.config import resolve_for_run
+    from torchrl_mpail2.config import ablations
+    from torchrl_mpail2.config import resolve_for_run
 
-    monkeypatch.setattr(switches, "runs_bf16_natively", lambda device="cpu": native)
+    monkeypatch.setattr(ablations, "runs_bf16_natively", lambda device="cpu": native)
     cfg = preset("lift_state")
     assert cfg.train.update_precision == "auto"
     assert resolve_for_run(cfg, "run").train.update_precision == ("bf16" if native else "float32")
@@ -150,10 +150,10 @@ def test_auto_update_precision_is_resolved_for_the_machine_and_saved(native, mon
     explicit = apply_overrides(preset("lift_state"), ["train.update_precision=bf16"])
     assert resolve_for_run(explicit, "run").train.update_precision == "bf16"  # asked for: kept
     if native:
-        assert switches.resolve_update_precision("bf16") == "bf16"
+        assert ablations.resolve_update_precision("bf16") == "bf16"
     else:  # the agent's builder warns
         with pytest.warns(RuntimeWarning, match="no native bfloat16"):
-            assert switches.resolve_update_precision("bf16") == "bf16"
+            assert ablations.resolve_update_precision("bf16") == "bf16"
 
 
 def _wait_for(predicate, timeout, proc):

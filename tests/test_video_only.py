@@ -86,7 +86,7 @@ def test_with_keys_keeps_the_episodes_and_names_unknown_keys():
 
 
 def test_the_video_only_preset_reads_only_the_table_camera():
-    from torchrl_mpail2.trainers.presets import preset
+    from torchrl_mpail2.config import preset
 
     cfg = preset("push_video_only")
     assert cfg.train.obs == "pixels" and cfg.train.demo_keys == ("external_image",)

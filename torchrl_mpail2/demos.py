@@ -22,8 +22,7 @@ from collections.abc import Sequence
 
 from torchrl_mpail2.data import DEMO_SOURCES, load_demo_source, load_demos, record_demos, save_demos
 from torchrl_mpail2.envs.factory import ENV_NAMES, make_env
-from torchrl_mpail2.trainers.config import ExperimentConfig, TrainConfig
-from torchrl_mpail2.trainers.presets import PRESETS, preset
+from torchrl_mpail2.config import PRESETS, ExperimentConfig, TrainConfig, preset
 from torchrl_mpail2.trainers.run_demos import env_options
 
 

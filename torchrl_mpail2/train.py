@@ -16,10 +16,9 @@ import json
 import sys
 import textwrap
 
-from torchrl_mpail2.config import ConfigError, field_docs, field_kind
+from torchrl_mpail2.config import (PRESETS, RESUME_FIELDS, ConfigError, ExperimentConfig, apply_overrides, field_docs,
+                                   field_kind, preset)
 from torchrl_mpail2.data.checkpoint import CheckpointError
-from torchrl_mpail2.trainers.config import RESUME_FIELDS, ExperimentConfig, apply_overrides
-from torchrl_mpail2.trainers.presets import PRESETS, preset
 from torchrl_mpail2.trainers.run_folder import RunFolderError
 
 

@@ -12,10 +12,9 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mpail2.agents.switches import (AgentSwitches, resolve_update_precision, switches_for,
-                                            warn_if_bf16_emulated)
 from torchrl_mpail2.agents.update import MPAIL2Updater
-from torchrl_mpail2.config import LossConfig, ModelConfig, PlannerConfig, build_section, migrate_config_data
+from torchrl_mpail2.config import (AgentSwitches, LossConfig, ModelConfig, PlannerConfig, build_section,
+                                   migrate_config_data, resolve_update_precision, switches_for, warn_if_bf16_emulated)
 from torchrl_mpail2.data import Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.modules.factory import make_mpail2_modules
@@ -42,7 +41,7 @@ class MPAIL2Agent:
         planner (PlannerConfig, optional): latent MPPI settings (Table 4).
 
     Keyword Args:
-        ablation (str): a Table 2 name resolved by :func:`~torchrl_mpail2.agents.switches.switches_for`
+        ablation (str): a Table 2 name resolved by :func:`~torchrl_mpail2.config.switches_for`
             (``"none"``: MPAIL2). Ignored when ``switches`` is given.
         switches (AgentSwitches, optional): the parts to use, directly.
         update_precision (str): ``float32`` | ``bf16`` (see :class:`MPAIL2Updater`) |

@@ -137,7 +137,7 @@ def _check_planner_overrides(overrides) -> None:
 def use_planner_settings(agent, overrides) -> None:
     """Gives ``agent``'s planner the run's planner settings (``agent.run_config``) changed by ``overrides``
     (``planner.FIELD=VALUE`` strings, checked like any config override); the networks are untouched."""
-    from torchrl_mpail2.trainers.config import ExperimentConfig, apply_overrides
+    from torchrl_mpail2.config import ExperimentConfig, apply_overrides
 
     _check_planner_overrides(overrides)
     if overrides:

@@ -1,6 +1,6 @@
-"""Training: the loop, run configs and presets (the agent and its updaters are in :mod:`torchrl_mpail2.agents`)."""
-from torchrl_mpail2.trainers.config import ABLATIONS, ExperimentConfig, TrainConfig, apply_overrides
-from torchrl_mpail2.trainers.presets import PRESETS, preset
+"""Training: the loop, with the run configs and presets re-exported from :mod:`torchrl_mpail2.config` (the agent and
+its updaters are in :mod:`torchrl_mpail2.agents`)."""
+from torchrl_mpail2.config import ABLATIONS, PRESETS, ExperimentConfig, TrainConfig, apply_overrides, preset
 
 __all__ = ["ABLATIONS", "ExperimentConfig", "TrainConfig", "apply_overrides", "PRESETS", "preset", "MPAIL2Trainer"]
 

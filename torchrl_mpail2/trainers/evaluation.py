@@ -21,6 +21,7 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
+from torchrl_mpail2.config import DEFAULT_EVAL_SEED, EVAL_ACTINGS
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
 
 __all__ = ["DEFAULT_EVAL_SEED", "episode_outcome", "evaluate_episodes", "evaluate_episodes_lockstep",
@@ -28,8 +29,6 @@ __all__ = ["DEFAULT_EVAL_SEED", "episode_outcome", "evaluate_episodes", "evaluat
 
 #: Safety cap on an evaluation episode's length (the envs end their episodes themselves).
 MAX_EVAL_STEPS = 100_000
-#: ``train.eval_seed`` unless set: clear of the training (``seed + episode``) and demo (``seed + 1e6 + i``) seeds.
-DEFAULT_EVAL_SEED = 2_000_000
 
 
 def episode_outcome(episode: TensorDict) -> dict[str, float]:
@@ -164,8 +163,8 @@ def evaluate_episodes_lockstep(envs: Sequence[EnvBase], actor, seeds: list[int],
     return outcomes
 
 
-#: Evaluation acting modes -> torchrl exploration types.
-ACTING = {"deterministic": ExplorationType.DETERMINISTIC, "random": ExplorationType.RANDOM}
+#: Evaluation acting modes (:data:`~torchrl_mpail2.config.EVAL_ACTINGS`) -> torchrl exploration types.
+ACTING = dict(zip(EVAL_ACTINGS, (ExplorationType.DETERMINISTIC, ExplorationType.RANDOM)))
 
 
 @contextlib.contextmanager

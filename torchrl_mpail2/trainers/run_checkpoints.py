@@ -12,9 +12,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.config import ConfigError, apply_resume_overrides, read_run_config
 from torchrl_mpail2.data import checkpoint as ckpt
-from torchrl_mpail2.trainers.config import apply_resume_overrides, read_run_config
 
 __all__ = ["RunCheckpoints"]
 
@@ -103,7 +102,7 @@ class RunCheckpoints:
 
         That is ``checkpoints/last`` unless a crash left it missing or damaged (see
         :func:`~torchrl_mpail2.data.checkpoint.find_resumable`); a run killed before its first checkpoint
-        starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.trainers.config.RESUME_FIELDS`,
+        starts over. ``overrides`` may change the fields of :data:`~torchrl_mpail2.config.RESUME_FIELDS`,
         e.g. ``["train.total_episodes=400"]`` or ``{"train.total_episodes": 400}`` to extend a finished run
         (:meth:`train` on a finished run changes nothing). Demonstrations other than those the checkpoint was
         trained on are refused unless ``allow_other_demos``.

@@ -9,7 +9,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_mpail2.data import Demonstrations, load_demo_source, load_demos, record_demos, save_demos
 from torchrl_mpail2.experts import get_expert
-from torchrl_mpail2.trainers.config import ExperimentConfig
+from torchrl_mpail2.config import ExperimentConfig
 
 log = logging.getLogger(__name__)
 #: Offset of the demo episodes' seeds from the run's seed (demo, training and evaluation episodes never share one).

@@ -19,14 +19,13 @@ from torchrl.data import TensorDictReplayBuffer
 from tqdm.auto import tqdm
 
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.config import ConfigError
+from torchrl_mpail2.config import ConfigError, ExperimentConfig, resolve_for_run
 from torchrl_mpail2.data import DemoBuffer, Demonstrations
 from torchrl_mpail2.envs.keys import observation_keys_of
 from torchrl_mpail2.planners.mppi import WARM_START_KEY
 from torchrl_mpail2.planners.policy_actor import NonFiniteActionError
 from torchrl_mpail2.trainers.collection import (EpisodeStream, crossed_multiple, episode_bound, make_collector,
                                                 split_episodes)
-from torchrl_mpail2.trainers.config import ExperimentConfig, resolve_for_run
 from torchrl_mpail2.trainers.evaluation import (evaluate_episodes, evaluate_episodes_lockstep, evaluation_seeds,
                                                 summarize_outcomes)
 from torchrl_mpail2.trainers.logs import RunLogger, episode_records
