@@ -20,49 +20,28 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import SliceSampler
 from torchrl.objectives import SoftUpdate
 
-from torchrl_mpail2 import (AdversarialRewardLoss, AttachExpertWindows, JEPDynamicsLoss, LambdaReturnValueLoss,
-                            LatentMPPIPlanner, MultiStepActorLoss, make_mpail2_modules, record_demos)
+from torchrl_mpail2 import AttachExpertWindows, LatentMPPIPlanner, MPAIL2Loss, make_mpail2_modules, record_demos
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.objectives import sample_window_transitions
 from torchrl_mpail2.planners.policy_actor import WarmupSwitch
-from torchrl_mpail2.trainers import preset
+from torchrl_mpail2.config import apply_overrides, preset
+from torchrl_mpail2.data import TRAJ_KEY
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
-#: Where the collector writes each trajectory's id (the SliceSampler keeps windows inside one trajectory).
-TRAJ_IDS = ("collector", "traj_ids")
-
-
 class Losses:
-    """The four objectives of Section 3, each with its own Adam optimiser (Table 4's learning rates and clips)."""
+    """The four objectives of Section 3, as the package builds them from the config (``MPAIL2Loss``), each with its
+    own Adam optimiser over the parameter groups the package declares (Table 4's learning rates and clips)."""
 
     def __init__(self, modules, cfg):
-        m, c = modules, cfg
-        # Eq. 2: multi-step latent prediction against stop-gradient encodings of the observed future.
-        self.dynamics = JEPDynamicsLoss(m.encoder, m.dynamics, rho=c.rho)
-        # Eq. 3: WGAN-GP critic r(z, z'): expert transitions up, replayed ones down, gradient penalty (App. A).
-        self.reward = AdversarialRewardLoss(m.encoder, m.reward, gp_coef=c.gp_coef,
-                                            scale_momentum=c.reward_scale_momentum)
-        # Eqs. 5-6: the Q-ensemble regressed on lambda-returns of imagined rollouts under the learned reward.
-        self.value = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=c.gamma,
-                                           lmbda=c.lmbda, return_form=c.return_form, mask_terminal=c.mask_terminal)
-        # Eq. 7: the multi-step policy maximises the same return plus an entropy bonus (alpha tuned, Eq. 8).
-        self.actor = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=c.gamma,
-                                        lmbda=c.lmbda, return_form=c.return_form, q_reduce=c.actor_q_reduce,
-                                        init_alpha=c.init_alpha, target_entropy_per_step=c.target_entropy_per_step)
-        adam = torch.optim.Adam
-        # the encoder learns only through the dynamics loss, ten times slower than the rest (Table 4)
-        self.optimizers = {
-            "dynamics": adam([{"params": m.encoder.parameters(), "lr": c.encoder_lr},
-                              {"params": m.dynamics.parameters(), "lr": c.lr}]),
-            "reward": adam(m.reward.parameters(), lr=c.lr),
-            "value": adam(m.value.parameters(), lr=c.lr),
-            "actor": adam(m.policy.parameters(), lr=c.lr),
-            "alpha": adam([self.actor.log_alpha], lr=c.alpha_lr),
-        }
-        self.clips = {"value": c.value_grad_clip, "actor": c.policy_grad_clip}
-        self.polyak = SoftUpdate(self.value, tau=c.tau)  # the target Q-ensemble trails the online one
-        self.transitions_per_window = c.transitions_per_window
+        self.loss = MPAIL2Loss(modules, cfg)
+        self.optimizers, self.clips = {}, {}
+        for stage, groups in self.loss.param_groups().items():
+            # the encoder learns only through the dynamics loss, ten times slower than the rest (Table 4)
+            self.optimizers[stage] = torch.optim.Adam([{"params": g["params"], "lr": g["lr"]} for g in groups])
+            self.clips[stage] = groups[0]["max_grad_norm"]
+        self.polyak = SoftUpdate(self.loss.value_loss, tau=cfg.tau)  # the target Q-ensemble trails the online one
+        self.transitions_per_window = cfg.transitions_per_window
 
     def step(self, stage: str, loss: torch.Tensor) -> None:
         """One gradient step of one stage's optimiser (a non-finite loss is skipped)."""
@@ -71,23 +50,32 @@ class Losses:
         optimizer = self.optimizers[stage]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        if self.clips.get(stage) is not None:
+        if self.clips[stage] is not None:
             params = [p for group in optimizer.param_groups for p in group["params"]]
             torch.nn.utils.clip_grad_norm_(params, self.clips[stage])
         optimizer.step()
 
     def update(self, batch) -> dict:
         """Algorithm 1's inner loop on one batch of replayed H-step windows ``[B, H]`` with expert windows."""
-        out = self.dynamics(batch)  # 1. encoder + dynamics on whole windows
+        L = self.loss
+        # 1. Eq. 2: encoder and dynamics, multi-step latent prediction against stop-gradient encodings of the
+        # observed future, on whole windows
+        out = L.dynamics_loss(batch)
         self.step("dynamics", out["loss_dynamics"])
-        # The reward, value and policy objectives are expectations over single transitions: draw a few per window.
+        # The reward, value and policy objectives are expectations over single transitions: draw a few per window,
+        # and encode them once with the encoder just updated (stop-gradient: no later stage moves the encoder).
         transitions = sample_window_transitions(batch, self.transitions_per_window)
-        out.update(self.reward(transitions))  # 2. the critic (stop-gradient latents: the encoder is not moved)
+        latents = L.replay_latents(transitions)
+        # 2. Eq. 3: the WGAN-GP critic r(z, z'), expert transitions up, replayed ones down, gradient penalty
+        out.update(L.reward_loss(transitions, latents=latents))
         self.step("reward", out["loss_reward"])
-        out.update(self.value(transitions))  # 3. the Q-ensemble, then Polyak averaging of its target
+        # 3. Eq. 4: the Q-ensemble regressed on lambda-returns (Eq. 6) of imagined rollouts under the learned
+        # reward, then Polyak averaging of its target
+        out.update(L.value_loss(transitions, latents=latents))
         self.step("value", out["loss_value"])
         self.polyak.step()
-        out.update(self.actor(transitions))  # 4. the policy, then the entropy temperature
+        # 4. Eq. 5: the multi-step policy maximises the same return plus an entropy bonus; then its temperature
+        out.update(L.actor_loss(transitions, latents=latents))
         self.step("actor", out["loss_actor"])
         self.step("alpha", out["loss_alpha"])
         return {k: float(v.detach()) for k, v in out.items()}
@@ -102,8 +90,8 @@ def main(preset_name: str = "point_mass", episodes: int | None = None, num_demos
          eval_every: int | None = None, eval_episodes: int | None = None, updates_per_episode: int | None = None,
          seed: int = 0, overrides=None) -> list[dict]:
     cfg = preset(preset_name)
-    for section, name, value in overrides or []:  # typed replacements, e.g. ("planner", "num_candidates", 32)
-        setattr(getattr(cfg, section), name, value)
+    if overrides:  # {"section.field": value}, checked as the command line's, e.g. {"planner.num_candidates": 32}
+        cfg = apply_overrides(cfg, overrides)
     t = cfg.train
     episodes, num_demos = episodes or t.total_episodes, num_demos or t.num_demos
     eval_every, eval_episodes = eval_every or t.eval_every, eval_episodes or t.eval_episodes
@@ -127,7 +115,7 @@ def main(preset_name: str = "point_mass", episodes: int | None = None, num_demos
     steps_per_episode = int(getattr(env, "horizon", 0) or getattr(env.base_env, "horizon", 0) or 1000)
     replay = TensorDictReplayBuffer(
         storage=LazyTensorStorage(episodes * steps_per_episode), batch_size=t.batch_size * H,
-        sampler=SliceSampler(slice_len=H, traj_key=TRAJ_IDS, strict_length=True),
+        sampler=SliceSampler(slice_len=H, traj_key=TRAJ_KEY, strict_length=True),
         transform=AttachExpertWindows(demos, H))  # each sample: [B * H] steps + H-step expert windows
     collector = Collector(env, actor, frames_per_batch=steps_per_episode, total_frames=episodes * steps_per_episode)
 
@@ -150,7 +138,7 @@ def main(preset_name: str = "point_mass", episodes: int | None = None, num_demos
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="point_mass", help="a preset of torchrl_mpail2.trainers.PRESETS")
+    p.add_argument("--preset", default="point_mass", help="a preset of torchrl_mpail2.config.PRESETS")
     p.add_argument("--episodes", type=int, help="default: the preset's train.total_episodes")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)

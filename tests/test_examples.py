@@ -110,18 +110,30 @@ def _algorithm1():
     return _example("algorithm1")
 
 
-def test_algorithm1_spelled_out_updates_every_weight_exactly_like_the_updater():
-    """The readable example's four losses and five optimisers equal MPAIL2Updater's update, weight for weight."""
+#: Loss settings the spelled-out update must follow as the updater does: the point-mass preset's, Lift's (standard
+#: TD(lambda), one transition per window, the raw critic with penalty 10) and the other switches of the losses.
+ALGORITHM1_SETTINGS = {
+    "point_mass": {"loss.transitions_per_window": 2, "loss.encoder_lr": 3e-5},  # the paper: the encoder 10x slower
+    "lift_losses": {"loss.return_form": "td_lambda", "loss.transitions_per_window": 1,
+                    "loss.reward_scale_momentum": None, "loss.gp_coef": 10.0},
+    "other_switches": {"loss.value_head_reduce": "mean", "loss.actor_q_reduce": "min", "loss.return_form": "authors",
+                       "loss.mask_terminal": True, "loss.value_grad_clip": 0.5, "loss.rho": 0.9},
+}
+
+
+@pytest.mark.parametrize("setting", sorted(ALGORITHM1_SETTINGS))
+def test_algorithm1_spelled_out_updates_every_weight_exactly_like_the_updater(setting):
+    """The readable example's four losses and five optimisers equal MPAIL2Updater's update, weight for weight,
+    whatever the loss settings."""
     import copy
 
     from tensordict import TensorDict
 
     from torchrl_mpail2 import MPAIL2Loss, MPAIL2Updater, make_mpail2_modules
+    from torchrl_mpail2.config import apply_overrides, preset
     from torchrl_mpail2.envs import make_env
-    from torchrl_mpail2.trainers import preset
 
-    cfg = preset("point_mass")
-    cfg.loss.transitions_per_window, cfg.loss.encoder_lr = 2, 3e-5  # the paper: the encoder 10x slower
+    cfg = apply_overrides(preset("point_mass"), ALGORITHM1_SETTINGS[setting])
     env = make_env("point_mass")
     torch.manual_seed(0)
     modules = make_mpail2_modules(env.observation_spec, env.action_spec, cfg.model)
@@ -142,15 +154,15 @@ def test_algorithm1_spelled_out_updates_every_weight_exactly_like_the_updater():
     for key, value in twin.state_dict().items():
         torch.testing.assert_close(modules.state_dict()[key], value, rtol=1e-5, atol=1e-6, msg=key)
     target = updater.loss.value_loss.target_qvalue_network_params
-    torch.testing.assert_close(losses.value.target_qvalue_network_params, target, rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(losses.actor.log_alpha, updater.loss.actor_loss.log_alpha)
+    torch.testing.assert_close(losses.loss.value_loss.target_qvalue_network_params, target, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(losses.loss.actor_loss.log_alpha, updater.loss.actor_loss.log_alpha)
     assert mine["loss_value"] == pytest.approx(float(theirs["loss_value"]), rel=1e-5)
 
 
 def test_algorithm1_runs_end_to_end_with_tiny_settings():
     history = _algorithm1().main("point_mass", episodes=3, num_demos=2, eval_every=3, eval_episodes=2,
                                  updates_per_episode=2,
-                                 overrides=[("planner", "num_candidates", 32), ("planner", "num_elites", 4)])
+                                 overrides={"planner.num_candidates": 32, "planner.num_elites": 4})
     assert [row["episode"] for row in history] == [3]
     assert history[0]["episodes"] == 2 and 0.0 <= history[0]["success_rate_any_step"] <= 1.0
     assert all(math.isfinite(history[0][k]) for k in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor"))
