@@ -231,7 +231,7 @@ def test_model_free_losses_isolate_their_gradients():
 
 
 def test_window_transitions_are_distinct_steps_of_their_own_window():
-    from torchrl_mpail2.objectives._base import sample_window_transitions
+    from torchrl_mpail2.objectives.base import sample_window_transitions
     rows = torch.arange(6).unsqueeze(-1).expand(6, 5)
     td = TensorDict({"row": rows, "t": torch.arange(5).expand(6, 5), ("next", "t"): torch.arange(5).expand(6, 5) + 1},
                     [6, 5])

@@ -11,7 +11,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import SoftUpdate
 
 from torchrl_mpail2.objectives import StagedLoss
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
 
 log = logging.getLogger(__name__)
 

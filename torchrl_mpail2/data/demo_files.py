@@ -17,7 +17,7 @@ from torchrl.envs import EnvBase
 from torchrl_mpail2.data.checksums import folder_manifest, verify_manifest
 from torchrl_mpail2.data.demos import (
     EPISODE_KEY, FORMAT_NAME, FORMAT_VERSION, HEADER_FILE, INDEX_KEYS, OBSERVATIONS_DIR, STEP_KEY, DemoFormatError,
-    Demonstrations, _check_finite, _dtype_from_name, _key_from_json,
+    Demonstrations, check_finite_observations, _dtype_from_name, _key_from_json,
 )
 from torchrl_mpail2.envs.keys import observation_keys_of
 
@@ -41,7 +41,7 @@ def save_demos(demos: Demonstrations, path: str | Path, overwrite: bool = False)
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True to replace it.")
-    _check_finite(demos.observations, ValueError, f"Not saving demonstrations to {path}")
+    check_finite_observations(demos.observations, ValueError, f"Not saving demonstrations to {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
     staging = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
     try:
@@ -219,7 +219,7 @@ def load_demos(path: str | Path, observation_spec: Composite | EnvBase | None = 
         verify_manifest(path, header["files"], DemoFormatError, check_digests=verify)
         observations = TensorDict.load_memmap(path / OBSERVATIONS_DIR).to_tensordict()
         _check_contents(observations, header)
-        _check_finite(observations, DemoFormatError, str(path))
+        check_finite_observations(observations, DemoFormatError, str(path))
     except DemoFormatError:
         raise
     except (KeyError, TypeError, ValueError, RuntimeError, OSError, AttributeError) as error:

@@ -80,7 +80,7 @@ def _dtype_from_name(name: str) -> torch.dtype:
     return dtype
 
 
-def _check_finite(observations: TensorDict, error: type[Exception], where: str) -> None:
+def check_finite_observations(observations: TensorDict, error: type[Exception], where: str) -> None:
     """Raises ``error`` naming the first float observation key that holds NaN or Inf, and its episodes."""
     episode = observations.get(EPISODE_KEY)
     for key, tensor in observations.items(True, True):
@@ -236,7 +236,7 @@ class Demonstrations:
         return "\n".join(lines)
 
 
-def _assemble(
+def assemble_demonstrations(
     episodes: Sequence[Mapping[Any, torch.Tensor]],
     metadata: Sequence[dict],
     env_id: str,
@@ -275,7 +275,7 @@ def _assemble(
     columns[EPISODE_KEY] = torch.repeat_interleave(torch.arange(len(episodes)), counts)
     columns[STEP_KEY] = torch.cat([torch.arange(int(count)) for count in counts])
     observations = TensorDict(columns, batch_size=[int(counts.sum())])
-    _check_finite(observations, ValueError, "Demonstrations")
+    check_finite_observations(observations, ValueError, "Demonstrations")
 
     first = torch.cumsum(counts, 0) - counts
     episode_meta = [
@@ -365,4 +365,4 @@ def demos_from_arrays(
         }
         for i in range(len(tensors))
     ]
-    return _assemble(tensors, metadata, env_id=env_id)
+    return assemble_demonstrations(tensors, metadata, env_id=env_id)

@@ -19,7 +19,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.data import find_start_stop_traj
 
-from torchrl_mpail2.data.demos import EPISODE_KEY, Demonstrations, _check_finite, demos_from_arrays
+from torchrl_mpail2.data.demos import EPISODE_KEY, Demonstrations, check_finite_observations, demos_from_arrays
 from torchrl_mpail2.envs.keys import observation_keys_of
 
 __all__ = ["EPISODE_ID_KEYS", "SUCCESS_KEY", "demos_from_ted", "import_ted"]
@@ -54,7 +54,7 @@ def _episode_slices(data: TensorDictBase, episode_key: NestedKey | None) -> list
 def _observations_by_episode(data: TensorDictBase, observation_keys: Sequence[str],
                              slices: list[slice]) -> TensorDict:
     """The observation keys (at the root and under ``"next"``) with the episode index of each transition, in the
-    layout :func:`~torchrl_mpail2.data.demos._check_finite` reads."""
+    layout :func:`~torchrl_mpail2.data.demos.check_finite_observations` reads."""
     episode = torch.cat([torch.full((part.stop - part.start,), i) for i, part in enumerate(slices)])
     columns = {full: data.get(full) for key in observation_keys for full in (key, ("next", key))}
     return TensorDict({**columns, EPISODE_KEY: episode}, batch_size=data.batch_size)
@@ -106,7 +106,7 @@ def demos_from_ted(data: TensorDictBase, observation_keys: Sequence[str], *, env
         raise KeyError(f"TED data has no episode key {episode_key!r}")
     slices = _episode_slices(data, episode_key)
     # before the order check, which NaN (unequal to itself) would fail with a misleading message
-    _check_finite(_observations_by_episode(data, observation_keys, slices), ValueError, where)
+    check_finite_observations(_observations_by_episode(data, observation_keys, slices), ValueError, where)
     episodes = []
     for i, part in enumerate(slices):
         ep = data[part]

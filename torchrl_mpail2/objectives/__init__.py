@@ -1,5 +1,5 @@
 """TorchRL loss modules of MPAIL2, one per optimiser."""
-from torchrl_mpail2.objectives._base import sample_window_transitions
+from torchrl_mpail2.objectives.base import sample_window_transitions
 from torchrl_mpail2.objectives.actor import MultiStepActorLoss
 from torchrl_mpail2.objectives.dynamics import JEPDynamicsLoss
 from torchrl_mpail2.objectives.model_free import DACLoss, ModelFreeActorLoss, ModelFreeValueLoss

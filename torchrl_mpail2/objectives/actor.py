@@ -12,8 +12,9 @@ from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives.imagination import _checked_form, ensemble_estimate, frozen, imagined_lambda_return
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
+from torchrl_mpail2.objectives.imagination import (checked_return_form, ensemble_estimate, frozen,
+                                                   imagined_lambda_return)
 
 
 class MultiStepActorLoss(MPAIL2LossBase):
@@ -57,7 +58,7 @@ class MultiStepActorLoss(MPAIL2LossBase):
         action_dim = policy_network.net.action_dim
         self.target_entropy = float(-action_dim if target_entropy_per_step is None else target_entropy_per_step)
         self.gamma, self.lmbda = gamma, lmbda
-        self.return_form = _checked_form(return_form)
+        self.return_form = checked_return_form(return_form)
         self.q_reduce = q_reduce
 
     def forward(self, tensordict: TensorDictBase, latents=None) -> TensorDictBase:

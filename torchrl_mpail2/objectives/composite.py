@@ -6,7 +6,7 @@ from contextlib import AbstractContextManager, nullcontext
 
 from tensordict import TensorDict, TensorDictBase
 
-from torchrl_mpail2.objectives._base import MPAIL2LossBase, sample_window_transitions
+from torchrl_mpail2.objectives.base import MPAIL2LossBase, sample_window_transitions
 
 #: Stages that read whole ``[B, T]`` windows (the world model's multi-step prediction, Eq. 2); every other stage
 #: reads ``cfg.transitions_per_window`` random transitions of each window.

@@ -6,7 +6,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from torchrl_mpail2.modules.dynamics import LatentDynamics
 from torchrl_mpail2.modules.encoder import ObservationEncoder
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
 
 
 class JEPDynamicsLoss(MPAIL2LossBase):

@@ -20,7 +20,9 @@ from torchrl_mpail2.modules.value import QEnsembleNet
 #: Heads drawn from the ensemble for a target or an objective (as in TD-MPC2, which the paper builds on).
 HEADS_PER_ESTIMATE = 2
 
-def _checked_form(form: str) -> str:
+
+def checked_return_form(form: str) -> str:
+    """``form`` if it is one of :data:`~torchrl_mpail2.functional.RETURN_FORMS`; a ValueError naming them otherwise."""
     if form not in RETURN_FORMS:
         raise ValueError(f"unknown return_form {form!r}; choose from {RETURN_FORMS}")
     return form

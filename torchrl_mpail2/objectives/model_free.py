@@ -17,7 +17,7 @@ from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
 from torchrl_mpail2.config import LossConfig
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
 from torchrl_mpail2.objectives.imagination import ensemble_estimate, frozen
 from torchrl_mpail2.objectives.composite import StagedLoss
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss

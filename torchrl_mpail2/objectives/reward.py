@@ -7,7 +7,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl_mpail2.functional import gradient_penalty
 from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.reward import TransitionReward
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
 
 
 class AdversarialRewardLoss(MPAIL2LossBase):

@@ -9,8 +9,8 @@ from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
 from torchrl_mpail2.modules.value import QEnsemble
-from torchrl_mpail2.objectives._base import MPAIL2LossBase
-from torchrl_mpail2.objectives.imagination import _checked_form, ensemble_estimate, imagined_lambda_return
+from torchrl_mpail2.objectives.base import MPAIL2LossBase
+from torchrl_mpail2.objectives.imagination import checked_return_form, ensemble_estimate, imagined_lambda_return
 
 
 class LambdaReturnValueLoss(MPAIL2LossBase):
@@ -62,7 +62,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         if head_reduce not in ("sum", "mean"):
             raise ValueError(f"head_reduce must be 'sum' or 'mean', got {head_reduce!r}")
         self.gamma, self.lmbda, self.mask_terminal, self.head_reduce = gamma, lmbda, mask_terminal, head_reduce
-        self.return_form = _checked_form(return_form)
+        self.return_form = checked_return_form(return_form)
 
     @torch.no_grad()
     def target(self, z, z_next, terminated=None):
