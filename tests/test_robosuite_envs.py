@@ -11,7 +11,8 @@ pytest.importorskip("robosuite")
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 from torchrl_mpail2.envs.robosuite_control import MAX_EEF_DELTA, WORKSPACE_HIGH, WORKSPACE_LOW  # noqa: E402
-from torchrl_mpail2.envs.robosuite_env import PROPRIO_DIM, RobosuiteEnv, make_robosuite_env  # noqa: E402
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv, make_robosuite_env  # noqa: E402
+from torchrl_mpail2.envs.robosuite_observations import PROPRIO_DIM  # noqa: E402
 from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert  # noqa: E402
 
 STATE_TASKS = ("Lift", "Push", "PushMirrored")

@@ -83,7 +83,7 @@ def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> 
     episodes = [demonstrations.episode(i).select(*keys) for i in range(demonstrations.num_episodes)]
     eef_to_cube = None
     if agent.run_config["train"]["env"] in ("robosuite/Lift", "robosuite/Push") and "object" in keys:
-        from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE as eef_to_cube
+        from torchrl_mpail2.envs.robosuite_observations import OBJECT_EEF_TO_CUBE as eef_to_cube
     net = agent.modules.reward.module
     profile = critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube,
                                     agent.modules.value.net, agent.modules.policy.net)

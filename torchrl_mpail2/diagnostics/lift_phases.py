@@ -60,7 +60,7 @@ def _check_state_keys(rollout: TensorDictBase) -> None:
 
 def _reach_closing_held(proprio: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per step: end-effector-to-cube distance, within reach, fingers closing, fingers held on something in reach."""
-    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+    from torchrl_mpail2.envs.robosuite_observations import OBJECT_EEF_TO_CUBE
 
     distance = np.linalg.norm(obj[:, OBJECT_EEF_TO_CUBE], axis=-1)
     opening = proprio[:, 3] - proprio[:, 4]
@@ -75,7 +75,7 @@ def cube_rise_m(obj: np.ndarray) -> np.ndarray:
 
 def hand_height(obj):
     """``[*B]``: the end effector's height (m) from the ``"object"`` observation ``[*B, D]`` (array or tensor)."""
-    from torchrl_mpail2.envs.robosuite_env import OBJECT_EEF_TO_CUBE
+    from torchrl_mpail2.envs.robosuite_observations import OBJECT_EEF_TO_CUBE
 
     return obj[..., 2] + obj[..., OBJECT_EEF_TO_CUBE][..., 2]
 

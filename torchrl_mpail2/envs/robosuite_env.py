@@ -6,18 +6,7 @@ the success flag, so this is a small :class:`~torchrl.envs.EnvBase` of its own.
 Control (``OSC_POSITION`` at 20 Hz, actions as end-effector displacement targets inside a workspace box, the
 gripper modes): :mod:`torchrl_mpail2.envs.robosuite_control`.
 
-Observation keys (flat, float32 unless stated):
-
-* ``"proprio"`` ``[26]``: end-effector position (3), finger joint positions (2), sin (7) and cos (7) of
-  the arm joint angles, arm joint velocities (7); ``[27]`` with ``observe_gripper_command``, which appends the
-  gripper controller's current command in ``[-1, 1]`` (the paper's "gripper trigger"; robosuite does not observe it).
-* ``"object"`` ``[10]`` (Lift) / ``[11]`` (Push): cube position (3), cube quaternion xyzw (4),
-  end-effector minus cube position (3); Push adds the distance the cube still has to travel past the line (1).
-* ``"external_image"`` / ``"wrist_image"``: uint8 ``[3, 64, 64]`` from robosuite's ``agentview`` and
-  ``robot0_eye_in_hand`` cameras, flipped upright (robosuite renders in the OpenGL convention, bottom row first).
-
-Modes: ``"state"`` = proprio + object; ``"pixels"`` = proprio + both images; ``"external_pixels"`` = external
-image only. No renderer is created in state mode.
+Observation keys and modes (state, pixels, external_pixels): :mod:`torchrl_mpail2.envs.robosuite_observations`.
 
 Every reset and step also writes ``"success"`` (bool ``[1]``), and every step the task reward under
 ``"task_reward"`` (logging only; MPAIL2 learns its own reward), ``"done"``, ``"terminated"`` (always False:
@@ -43,6 +32,10 @@ from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
 from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
+from torchrl_mpail2.envs.robosuite_observations import (  # noqa: E402
+    EXTERNAL_CAMERA, IMAGE_SIZE, PROPRIO_DIM, WRIST_CAMERA, object_vector, proprio_vector,
+    upright_chw,
+)
 from torchrl_mpail2.envs.robosuite_render import check_renderer, make_renderer_current, use_light_renderer  # noqa: E402
 from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
     CONTROL_FREQ_HZ, GRIPPER_CLOSED, MAX_EEF_DELTA, OSC_POSITION_ARM, binary_gripper_state, check_control_settings,
@@ -51,14 +44,8 @@ from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
 from torchrl_mpail2.envs import push_task  # noqa: E402, F401  (registers Push / PushMirrored, patches mujoco compat)
 
 DEFAULT_HORIZON = {"Lift": 100, "Push": 100, "PushMirrored": 100}
-IMAGE_SIZE = 64
-EXTERNAL_CAMERA = "agentview"
-WRIST_CAMERA = "robot0_eye_in_hand"
 #: Side of the frames of :meth:`RobosuiteEnv.render` (evaluation videos), pixels.
 RENDER_SIZE = 256
-PROPRIO_DIM = 26
-#: Where ``"object"`` holds the end effector's position minus the cube's (Lift and Push).
-OBJECT_EEF_TO_CUBE = slice(7, 10)
 
 # mujoco warnings that mean the physics or the commanded torques went non-finite or diverged.
 _INSTABILITY_WARNINGS = {
@@ -349,35 +336,19 @@ class RobosuiteEnv(EnvBase):
     def _observation_td(self, sim_obs: dict) -> TensorDict:
         out = {"success": np.array([bool(self._sim_env._check_success())])}
         if self.obs_mode in ("state", "pixels"):
-            out["proprio"] = np.concatenate(
-                [
-                    sim_obs["robot0_eef_pos"],
-                    sim_obs["robot0_gripper_qpos"],
-                    sim_obs["robot0_joint_pos_sin"],
-                    sim_obs["robot0_joint_pos_cos"],
-                    sim_obs["robot0_joint_vel"],
-                    [self.gripper_command()] if self.observe_gripper_command else [],
-                ]
-            ).astype(np.float32)
+            out["proprio"] = proprio_vector(sim_obs, self.gripper_command() if self.observe_gripper_command else None)
         if self.obs_mode == "state":
-            state = self.privileged_state()
-            parts = [state["cube_pos"], state["cube_quat"], state["eef_pos"] - state["cube_pos"]]
-            if self.is_push:
-                parts.append([self._sim_env.distance_to_line()])
-            out["object"] = np.concatenate(parts).astype(np.float32)
+            out["object"] = object_vector(self.privileged_state(),
+                                          self._sim_env.distance_to_line() if self.is_push else None)
         if self.obs_mode in ("pixels", "external_pixels"):
-            out["external_image"] = self._upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
+            out["external_image"] = upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
         if self.obs_mode == "pixels":
-            out["wrist_image"] = self._upright_chw(sim_obs[f"{WRIST_CAMERA}_image"])
+            out["wrist_image"] = upright_chw(sim_obs[f"{WRIST_CAMERA}_image"])
         # the TensorDict names its device: transforms such as TensorDictPrimer build their reset masks on it
         return TensorDict(
             {key: torch.as_tensor(value, device=self.device) for key, value in out.items()}, batch_size=[],
             device=self.device,
         )
-
-    @staticmethod
-    def _upright_chw(image: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(image[::-1].transpose(2, 0, 1))
 
 
 def robosuite_base(env) -> RobosuiteEnv | None:
