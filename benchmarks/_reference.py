@@ -22,7 +22,7 @@ from torchrl_mpail2.modules import value as value_module
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.policy import is_deterministic
 from torchrl_mpail2.objectives import _base, actor
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
 
 

@@ -27,7 +27,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from evaluate_checkpoints import RESULTS, numbered_checkpoints, run_env
 from torchrl_mpail2.agents import MPAIL2Agent
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
 GRIPPER = -1  # the gripper command is the last action dimension

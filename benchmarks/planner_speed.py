@@ -46,7 +46,7 @@ from _reference import InitialPlanner  # noqa: E402
 
 from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, PlannerConfig  # noqa: E402
 from torchrl_mpail2.modules.encoder import validate_observations  # noqa: E402
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE  # noqa: E402
+from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE  # noqa: E402
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

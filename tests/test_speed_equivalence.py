@@ -24,7 +24,7 @@ from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, MPAIL2Loss, MPAIL2Upda
 from torchrl_mpail2.config import ModelConfig
 from torchrl_mpail2.modules import MPAIL2Modules
 from torchrl_mpail2.objectives import actor as actor_module
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
 
 PLANNER = dict(num_candidates=64, num_elites=8, iterations=3, temperature=0.5, policy_fraction=0.1)
 

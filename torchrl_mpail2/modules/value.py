@@ -53,6 +53,25 @@ class StackedLayerNorm(nn.Module):
         return torch.addcmul(b.unsqueeze(1), F.layer_norm(x, x.shape[-1:]), w.unsqueeze(1))  # one pass, not two
 
 
+#: Heads drawn from the ensemble for a target, an objective or a plan's score (as in TD-MPC2, which the paper
+#: builds on).
+HEADS_PER_ESTIMATE = 2
+
+
+def draw_heads(num_q: int, device: torch.device | str, generator: torch.Generator | None = None) -> Tensor:
+    """:data:`HEADS_PER_ESTIMATE` distinct random head indices of an ``num_q``-head ensemble, on ``device``.
+
+    Drawn on the generator's device (the CPU without one: no device sync), from ``generator`` or the global stream.
+
+    Examples:
+        >>> heads = draw_heads(5, "cpu", torch.Generator().manual_seed(0))
+        >>> heads.shape, bool((heads < 5).all()), heads.unique().numel()
+        (torch.Size([2]), True, 2)
+    """
+    draw_device = generator.device if generator is not None else torch.device("cpu")
+    return torch.randperm(num_q, generator=generator, device=draw_device)[:HEADS_PER_ESTIMATE].to(device)
+
+
 class QEnsembleNet(nn.Module):
     r"""``E`` heads of ``[z, a] -> (Linear, LayerNorm, SiLU) x len(hidden) -> Linear(1)``.
 

@@ -15,10 +15,7 @@ from torchrl_mpail2.functional import RETURN_FORMS, multi_step_return
 from torchrl_mpail2.modules.dynamics import DynamicsNet
 from torchrl_mpail2.modules.policy import PlanPolicyNet
 from torchrl_mpail2.modules.reward import RewardNet
-from torchrl_mpail2.modules.value import QEnsembleNet
-
-#: Heads drawn from the ensemble for a target or an objective (as in TD-MPC2, which the paper builds on).
-HEADS_PER_ESTIMATE = 2
+from torchrl_mpail2.modules.value import QEnsembleNet, draw_heads
 
 
 def checked_return_form(form: str) -> str:
@@ -26,11 +23,6 @@ def checked_return_form(form: str) -> str:
     if form not in RETURN_FORMS:
         raise ValueError(f"unknown return_form {form!r}; choose from {RETURN_FORMS}")
     return form
-
-
-def draw_heads(num_q: int, device: torch.device) -> Tensor:
-    """Two distinct random head indices (CPU randperm: no device sync)."""
-    return torch.randperm(num_q)[:HEADS_PER_ESTIMATE].to(device)
 
 
 def ensemble_estimate(qnet: QEnsembleNet, reduce: str) -> Callable[[Tensor, Tensor], Tensor]:

@@ -16,7 +16,7 @@ from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
-from torchrl_mpail2.objectives.imagination import HEADS_PER_ESTIMATE
+from torchrl_mpail2.modules.value import draw_heads
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
 #: Where the warm start (the previous call's final plan mean ``[*B, H, A]``) lives in the tensordict when the env
@@ -298,10 +298,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
         z = m.encoder.encode(flat)
         num_pi = cfg.num_policy_samples
         num_gauss = cfg.num_candidates - num_pi
-        # the evaluation generator lives on the planner's device; randperm draws on the generator's device
-        draw_device = self.generator.device if self.generator is not None else torch.device("cpu")
-        heads = torch.randperm(m.value.net.num_q, generator=self.generator, device=draw_device)
-        heads = heads[:HEADS_PER_ESTIMATE].to(z.device)
+        heads = draw_heads(m.value.net.num_q, z.device, self.generator)  # one pair of Q heads for the whole call
         mean = self._initial_mean(flat, num_envs, z)
         std = torch.full_like(mean, cfg.std_max)
         score = self._scorer()
