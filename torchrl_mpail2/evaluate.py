@@ -45,7 +45,7 @@ LOCAL_PATHS = ("run_dir", "demos")
 
 
 def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool = True,
-                        acting: str = "deterministic", threads: int | None = None) -> dict:
+                        acting: str = "deterministic", threads: int | None = None, progress: bool = False) -> dict:
     """Plays the agent of the checkpoint at ``path`` for ``episodes`` episodes of its run's environment.
 
     Args:
@@ -54,6 +54,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
         held_out (bool): the held-out episodes (default) or the run's fixed evaluation episodes.
         acting (str): ``deterministic`` (the plan's mean, as every evaluation here) or ``random`` (sampled around it).
         threads (int, optional): torch threads.
+        progress (bool): a progress bar over the episodes. Defaults to False.
 
     Returns:
         dict: ``success_rate_any_step`` with its 95% bootstrap interval ``success_any_step_ci``, ``success_rate``
@@ -76,7 +77,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
     env = evaluation_env(train)
     start = time.perf_counter()
     try:
-        outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting)
+        outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting, progress=progress)
     finally:
         env.close()
     summary = summarize_outcomes(outcomes)
@@ -124,6 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--acting", choices=sorted(ACTING), default="deterministic")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--out", type=Path, help="also write the result as JSON to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--export", type=Path, metavar="DIR", help="write the agent alone to DIR instead of playing")
     args = p.parse_args(argv)
     if args.episodes < 1:
@@ -135,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"wrote {out} ({size / 1e6:.2f} MB)")
             return
         result = evaluate_checkpoint(args.checkpoint, args.episodes, held_out=not args.fixed, acting=args.acting,
-                                     threads=args.threads)
+                                     threads=args.threads, progress=not args.quiet)
     except (ckpt.CheckpointError, FileExistsError) as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -20,6 +20,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+from tqdm.auto import tqdm
 
 from torchrl_mpail2.config import DEFAULT_EVAL_SEED, EVAL_ACTINGS
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
@@ -68,7 +69,7 @@ def evaluation_env(train: Mapping) -> EnvBase:
 @torch.no_grad()
 def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, videos: list | None = None,
                       video_episodes: int = 0, rollouts: list | None = None,
-                      acting: str = "deterministic") -> list[dict[str, float]]:
+                      acting: str = "deterministic", progress: bool = False) -> list[dict[str, float]]:
     """Plays one episode per seed with ``actor`` (deterministic by default); returns each :func:`episode_outcome`.
 
     Args:
@@ -85,10 +86,12 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
         acting (str): ``"deterministic"`` (the plan's mean, the evaluation of every recorded result) or ``"random"``
             (the action sampled around it as in training, the noise still drawn from the per-episode seeded
             generator).
+        progress (bool): a progress bar over the episodes, with the any-step success so far. Defaults to False.
     """
     outcomes = []
+    bar = tqdm(seeds, desc="evaluation", unit="episode", disable=not progress)
     with _evaluation_planner(planner, acting) as start_episode:
-        for seed in seeds:
+        for seed in bar:
             env.set_seed(seed)
             start_episode(seed)
             if videos is not None and len(outcomes) < video_episodes:
@@ -101,6 +104,7 @@ def evaluate_episodes(env: EnvBase, actor, seeds: list[int], planner=None, *, vi
             else:
                 episode = env.rollout(MAX_EVAL_STEPS, actor, break_when_any_done=True)
             outcomes.append(episode_outcome(episode))
+            bar.set_postfix(success=f"{sum(o['success_any_step'] for o in outcomes) / len(outcomes):.2f}")
             if rollouts is not None:
                 rollouts.append(episode)
     return outcomes
