@@ -105,6 +105,22 @@ def test_wandb_defaults_to_the_package_project_and_the_run_folder(wandb_env, tmp
     assert list((tmp_path / "run-7" / "wandb").glob("offline-run-*/run-*.wandb"))
 
 
+def test_a_resumed_run_logs_into_the_same_wandb_run(wandb_env, tmp_path):
+    """The run folder keeps its wandb id: a second launch (a resume) goes on in the first launch's wandb run; another
+    run folder gets its own; ``WANDB_RUN_ID`` still wins."""
+    from torchrl_mpail2.trainers.logs import WANDB_ID_FILE
+
+    wandb_env.setenv("WANDB_MODE", "offline")
+    (tmp_path / "run").mkdir()  # the trainer's run folder exists before its logger
+    (tmp_path / "other").mkdir()
+    first, again = _wandb_run(tmp_path / "run"), _wandb_run(tmp_path / "run")
+    other = _wandb_run(tmp_path / "other")
+    assert first.id == again.id == (tmp_path / "run" / WANDB_ID_FILE).read_text().strip()
+    assert other.id != first.id
+    wandb_env.setenv("WANDB_RUN_ID", "chosen01")
+    assert _wandb_run(tmp_path / "run").id == "chosen01"
+
+
 def test_wandb_mode_disabled_writes_nothing(wandb_env, tmp_path):
     wandb_env.setenv("WANDB_MODE", "disabled")
     run = _wandb_run(tmp_path / "run")

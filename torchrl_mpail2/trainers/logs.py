@@ -6,6 +6,8 @@ import importlib.util
 import json
 import math
 import os
+import secrets
+import string
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +21,8 @@ from torchrl_mpail2.trainers.videos import VIDEO_FPS, video_tensor
 
 #: The wandb project of a run whose environment names none (``WANDB_PROJECT``).
 WANDB_PROJECT = "torchrl-mpail2"
+#: The run folder's file holding its wandb run id, so that a resumed run logs into the same wandb run.
+WANDB_ID_FILE = "wandb_run_id"
 #: Where an evaluation's videos go in the TorchRL logger.
 VIDEO_TAG = "eval/video"
 
@@ -46,8 +50,9 @@ def make_torchrl_logger(kind: str, run_dir: Path, config: dict):
 
     wandb goes online where it is logged in and follows its own environment variables: ``WANDB_MODE`` (``offline``,
     ``disabled``), ``WANDB_PROJECT`` (default :data:`WANDB_PROJECT`), ``WANDB_ENTITY``, ``WANDB_RUN_GROUP``,
-    ``WANDB_NAME`` (default: the run folder's name) and ``WANDB_DIR`` (default: the run folder; wandb writes under
-    its ``wandb/``). The CSV logger writes each evaluation's videos under ``logs/videos/eval/`` as mp4 where
+    ``WANDB_NAME`` (default: the run folder's name), ``WANDB_DIR`` (default: the run folder; wandb writes under
+    its ``wandb/``) and ``WANDB_RUN_ID`` (default: the id kept in the run folder's :data:`WANDB_ID_FILE`, made on the
+    first launch, so that a resumed run goes on in the same wandb run). The CSV logger writes each evaluation's videos under ``logs/videos/eval/`` as mp4 where
     torchcodec is installed, as the uint8 tensor saved by ``torch.save`` (``.pt``) elsewhere.
     """
     if kind == "none":
@@ -62,6 +67,7 @@ def make_torchrl_logger(kind: str, run_dir: Path, config: dict):
         try:
             return WandbLogger(exp_name=os.environ.get("WANDB_NAME") or run_dir.name,
                                save_dir=os.environ.get("WANDB_DIR") or str(run_dir),
+                               id=os.environ.get("WANDB_RUN_ID") or wandb_run_id(run_dir),
                                project=os.environ.get("WANDB_PROJECT") or WANDB_PROJECT, config=config,
                                video_fps=VIDEO_FPS)
         except wandb.errors.UsageError as error:  # not logged in, most often
@@ -71,6 +77,20 @@ def make_torchrl_logger(kind: str, run_dir: Path, config: dict):
         from torchrl.record.loggers import TensorboardLogger
         return TensorboardLogger(exp_name=run_dir.name, log_dir=str(run_dir / "tensorboard"))
     raise ValueError(f"unknown logger {kind!r}")
+
+
+def wandb_run_id(run_dir: Path) -> str:
+    """The wandb run id of the run in ``run_dir``: read from its :data:`WANDB_ID_FILE`, or made (8 random lowercase
+    letters and digits, as wandb's own) and written there on the first launch (not where ``run_dir`` is no folder
+    yet: the logger creates none)."""
+    file = Path(run_dir) / WANDB_ID_FILE
+    if file.exists() and file.read_text().strip():
+        return file.read_text().strip()
+    alphabet = string.ascii_lowercase + string.digits
+    run_id = "".join(secrets.choice(alphabet) for _ in range(8))
+    if file.parent.is_dir():
+        file.write_text(run_id + "\n")
+    return run_id
 
 
 def _csv_video_format() -> str:
