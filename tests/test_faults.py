@@ -310,6 +310,9 @@ def test_a_finished_run_can_be_extended_on_resume(demo_dir, tmp_path):
         MPAIL2Trainer.resume(run, ["train.batch_size=4"])
     with pytest.raises(ConfigError, match=r"\['model.horizon'\] cannot change"):
         MPAIL2Trainer.resume(run, {"model.horizon": 4})
+    # a Ray run may go on on another cluster; its address is checked like the rest (it needs collector='ray')
+    with pytest.raises(ConfigError, match="ray_address='auto' applies to collector='ray' only"):
+        MPAIL2Trainer.resume(run, ["train.ray_address=auto"])
     # typed, from Python; denser checkpoints may be asked of a resumed run (they change nothing it learns)
     trainer = MPAIL2Trainer.resume(run, {"train.total_episodes": 3, "train.checkpoint_every": 3})
     first_launch = json.loads((run / "summary.json").read_text())
