@@ -252,3 +252,25 @@ def test_image_coder_loads_a_state_dict_from_before_the_pixel_statistics_as_cent
     old = {k: v for k, v in coder.state_dict().items() if not k.startswith("pixel_")}
     coder.load_state_dict(old)  # strict: the missing buffers are filled in, as the old code centred pixels
     assert torch.equal(coder.pixel_mean, torch.full((3, 64, 64), 0.5)) and torch.equal(coder.pixel_std, torch.ones(3, 64, 64))
+
+
+def test_the_world_model_verbs_are_the_networks_walked_forward():
+    """``imagine`` steps f_psi through the plan, ``rewards`` scores each consecutive pair as r_theta does, ``q`` and
+    ``pi`` are the ensemble's heads and the policy's plan, ``draw_heads`` two distinct heads."""
+    m = tiny_modules()
+    z0, plan = torch.randn(5, 16), torch.rand(5, 3, 2) * 2 - 1
+    latents = m.imagine(z0, plan)
+    assert latents.shape == (4, 5, 16) and torch.equal(latents[0], z0)
+    z = z0
+    for k in range(3):
+        z = m.dynamics.module(z, plan[:, k])
+        torch.testing.assert_close(latents[k + 1], z)
+    expected = torch.stack([m.reward.module(latents[k], latents[k + 1]).squeeze(-1) for k in range(3)])
+    torch.testing.assert_close(m.rewards(latents), expected, rtol=1e-5, atol=1e-6)
+    heads = m.draw_heads("cpu", torch.Generator().manual_seed(0))
+    assert heads.unique().numel() == 2 and m.q(z0, plan[:, 0], heads).shape == (2, 5)
+    assert m.q(z0, plan[:, 0]).shape == (m.value.net.num_q, 5)
+    mean_plan, log_prob = m.pi(z0, deterministic=True)
+    assert mean_plan.shape == (5, 3, 2) and log_prob.shape == (5,)
+    td = TensorDict({"observation": torch.randn(5, 3)}, [5])
+    torch.testing.assert_close(m.encode(td), m.encoder.encode(td))

@@ -124,8 +124,8 @@ def value_by_rise(agent, rollouts: list) -> dict:
                 continue
             rise_cm = cube_rise_m(rollout["next", "object"].numpy())[:-1][held] * 100
             z = encoder.encode(rollout["next"].select(*encoder.in_keys)).float()
-            q = m.value.net(z, m.policy.net(z, deterministic=True)[0][:, 0]).squeeze(-1).mean(0)[:-1]
-            reward = m.reward.module(z[:-1], z[1:]).squeeze(-1)
+            q = m.q(z, m.pi(z, deterministic=True)[0][:, 0]).mean(0)[:-1]
+            reward = m.rewards(z)
             bins = np.digitize(rise_cm, RISE_BINS_CM)
             rows = groups.setdefault(episode_outcome(rollout), {})
             for b, q_b, r_b in zip(bins, q[torch.as_tensor(held)].numpy(), reward[torch.as_tensor(held)].numpy()):

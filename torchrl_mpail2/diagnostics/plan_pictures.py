@@ -12,7 +12,6 @@ import torch
 from tensordict import TensorDictBase
 
 from torchrl_mpail2.diagnostics.latent_probe import LatentProbe, fit_latent_probe
-from torchrl_mpail2.objectives.imagination import rollout_latents
 from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episodes, evaluation_env, evaluation_seeds,
                                                 run_eval_seed)
 
@@ -46,7 +45,7 @@ def plane_position(env_name: str, plane: str = "xy") -> tuple[str, tuple[int, in
 @torch.no_grad()
 def decoded_paths(agent, probe: LatentProbe, z: torch.Tensor, plans: torch.Tensor) -> torch.Tensor:
     """``plans [K, H, A]`` from one latent ``z [Z]`` -> decoded positions ``[K, H + 1, D]`` (the start first)."""
-    latents = rollout_latents(agent.modules.dynamics.module, z.expand(plans.shape[0], -1), plans)
+    latents = agent.modules.imagine(z.expand(plans.shape[0], -1), plans)
     return probe(latents).transpose(0, 1)
 
 

@@ -5,7 +5,8 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import torch
-from torch import nn
+from tensordict import TensorDictBase
+from torch import Tensor, nn
 
 from torchrl_mpail2.config import ModelConfig
 from torchrl_mpail2.envs.keys import observation_keys_of
@@ -13,7 +14,8 @@ from torchrl_mpail2.modules.dynamics import LatentDynamics
 from torchrl_mpail2.modules.encoder import ObservationEncoder
 from torchrl_mpail2.modules.policy import MultiStepPolicy
 from torchrl_mpail2.modules.reward import TransitionReward
-from torchrl_mpail2.modules.value import QEnsemble
+from torchrl_mpail2.modules.value import QEnsemble, draw_heads
+from torchrl_mpail2.modules.world_model import chain_rewards, rollout_latents
 
 if TYPE_CHECKING:  # the modules only read the demonstrations; they do not depend on the data package
     from torchrl_mpail2.data import Demonstrations
@@ -43,6 +45,11 @@ class MPAIL2Modules(nn.Module):
         reward (TransitionReward): :math:`r_\theta`.
         value (QEnsemble): :math:`Q_\zeta`.
         policy (MultiStepPolicy): :math:`\pi_\phi`.
+
+    Its verbs, as TD-MPC2's world model has them, are what planners, returns and diagnostics call: :meth:`encode`,
+    :meth:`next`, :meth:`imagine`, :meth:`rewards`, :meth:`q`, :meth:`pi` and :meth:`draw_heads`. The losses keep
+    the single networks (TorchRL's functional parameters, target copies), and walk latents forward with the same
+    functions (:mod:`~torchrl_mpail2.modules.world_model`).
     """
 
     def __init__(self, observation_shapes: Mapping[str, Sequence[int]], action_dim: int, cfg: ModelConfig | None = None):
@@ -118,6 +125,36 @@ class MPAIL2Modules(nn.Module):
             images = {key: demos.observations.get(key).float() / 255.0 for key in shapes if key not in net.vector_keys}
             net.set_normalization({key: (x.mean(0), x.std(0, unbiased=False)) for key, x in images.items()})
         return self
+
+    # ---- the world model's verbs: what planners, returns and diagnostics call ---------------------------------
+    def encode(self, tensordict: TensorDictBase) -> Tensor:
+        r""":math:`z = e_\omega(o)` of the observations in ``tensordict`` -> ``[*B, Z]``."""
+        return self.encoder.encode(tensordict)
+
+    def next(self, z: Tensor, a: Tensor) -> Tensor:
+        r""":math:`z' = f_\psi(z, a)`: ``[*B, Z]``, ``[*B, A]`` -> ``[*B, Z]``."""
+        return self.dynamics.module(z, a)
+
+    def imagine(self, z0: Tensor, plan: Tensor) -> Tensor:
+        """The latents a plan reaches: ``z0 [M, Z]``, ``plan [M, H, A]`` -> ``[H + 1, M, Z]`` (``z0`` first)."""
+        return rollout_latents(self.dynamics.module, z0, plan)
+
+    def rewards(self, latents: Tensor) -> Tensor:
+        r""":math:`r_\theta(z_k, z_{k+1})` along a latent path ``[T + 1, *B, Z]`` -> ``[T, *B]``."""
+        return chain_rewards(self.reward.module, latents)
+
+    def q(self, z: Tensor, a: Tensor, heads: Tensor | None = None) -> Tensor:
+        r""":math:`Q_\zeta(z, a)` of the ensemble's heads (``heads``: indices, default all) -> ``[E, *B]``."""
+        return self.value.net(z, a, heads=heads).squeeze(-1)
+
+    def pi(self, z: Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+           ) -> tuple[Tensor, Tensor]:
+        r"""A plan of :math:`\pi_\phi(\cdot | z)`: ``z [*B, Z]`` -> ``(plan [*B, H, A], log_prob [*B])``."""
+        return self.policy.net(z, deterministic=deterministic, generator=generator)
+
+    def draw_heads(self, device: torch.device | str, generator: torch.Generator | None = None) -> Tensor:
+        """Two distinct Q heads for one estimate (:func:`~torchrl_mpail2.modules.value.draw_heads`)."""
+        return draw_heads(self.value.net.num_q, device, generator)
 
     @property
     def horizon(self) -> int:

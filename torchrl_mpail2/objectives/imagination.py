@@ -16,6 +16,7 @@ from torchrl_mpail2.modules.dynamics import DynamicsNet
 from torchrl_mpail2.modules.policy import PlanPolicyNet
 from torchrl_mpail2.modules.reward import RewardNet
 from torchrl_mpail2.modules.value import QEnsembleNet, draw_heads
+from torchrl_mpail2.modules.world_model import chain_rewards, rollout_latents
 
 
 def checked_return_form(form: str) -> str:
@@ -35,20 +36,6 @@ def ensemble_estimate(qnet: QEnsembleNet, reduce: str) -> Callable[[Tensor, Tens
         return q.min(0).values if reduce == "min" else q.mean(0)
 
     return estimate
-
-
-def rollout_latents(dynamics: DynamicsNet, z0: Tensor, plan: Tensor) -> Tensor:
-    """``z0 [M, Z]``, ``plan [M, H, A]`` -> ``[H+1, M, Z]`` (``z0`` first)."""
-    latents = [z0]
-    for k in range(plan.shape[-2]):
-        latents.append(dynamics(latents[-1], plan[..., k, :]))
-    return torch.stack(latents, 0)
-
-
-def chain_rewards(reward: RewardNet, latents: Tensor) -> Tensor:
-    """Rewards of consecutive latents ``[H+1, M, Z]`` -> ``[H, M]``, projecting each latent once."""
-    h_now, h_next = reward.project(latents)
-    return reward.from_projection(h_now[:-1], h_next[1:]).squeeze(-1)
 
 
 def imagined_lambda_return(

@@ -16,7 +16,6 @@ from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
-from torchrl_mpail2.modules.value import draw_heads
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
 #: Where the warm start (the previous call's final plan mean ``[*B, H, A]``) lives in the tensordict when the env
@@ -193,10 +192,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
         batch, num = plans.shape[:2]
         zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         actions = plans.to(z.dtype).reshape(batch * num, self.horizon, self.action_dim)
-        dynamics = self.components.dynamics.module
-        h_now0, _ = self.components.reward.module.project(z)  # the start is shared by all candidates: project once
+        m = self.components
+        h_now0, _ = m.reward.module.project(z)  # the start is shared by all candidates: project once
         h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
-        rewards, terminal = self._return_parts(zk, h_now, actions, heads, lambda k, zk: dynamics(zk, actions[:, k]))
+        rewards, terminal = self._return_parts(zk, h_now, actions, heads, lambda k, zk: m.next(zk, actions[:, k]))
         return rewards.view(batch, num), terminal.view(batch, num)
 
     def path_return_parts(self, latents: Tensor, actions: Tensor, heads: Tensor) -> tuple[Tensor, Tensor]:
@@ -224,8 +223,8 @@ class LatentMPPIPlanner(MPCPlannerBase):
         if rewarded < self.horizon:
             last_action = actions[:, rewarded]
         else:
-            last_action = m.policy.net(zk, deterministic=True)[0][:, 0]
-        q = m.value.net(zk, last_action, heads=heads).squeeze(-1).float().mean(0)
+            last_action = m.pi(zk, deterministic=True)[0][:, 0]
+        q = m.q(zk, last_action, heads).float().mean(0)
         return total, self.gamma ** rewarded * q
 
     def _scorer(self):
@@ -295,10 +294,10 @@ class LatentMPPIPlanner(MPCPlannerBase):
         """Algorithm 2 on ``[B]`` observations -> final ``(mean, plan, policy influence)``."""
         cfg, m = self.cfg, self.components
         num_envs = flat.shape[0]
-        z = m.encoder.encode(flat)
+        z = m.encode(flat)
         num_pi = cfg.num_policy_samples
         num_gauss = cfg.num_candidates - num_pi
-        heads = draw_heads(m.value.net.num_q, z.device, self.generator)  # one pair of Q heads for the whole call
+        heads = m.draw_heads(z.device, self.generator)  # one pair of Q heads for the whole call
         mean = self._initial_mean(flat, num_envs, z)
         std = torch.full_like(mean, cfg.std_max)
         score = self._scorer()
@@ -306,7 +305,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
             z = z.to(dtype or z.dtype)
             pi_plans = mean.new_empty(num_envs, 0, self.horizon, self.action_dim)
             if num_pi:
-                pi_plans = m.policy.net(z.unsqueeze(1).expand(num_envs, num_pi, z.shape[-1]), generator=self.generator)[0].float()
+                pi_plans = m.pi(z.unsqueeze(1).expand(num_envs, num_pi, z.shape[-1]), generator=self.generator)[0].float()
             for iteration in range(cfg.iterations):
                 noise = self._noise((num_envs, num_gauss, self.horizon, self.action_dim), mean)
                 plans = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)

@@ -33,7 +33,7 @@ class PolicyActor(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         m = self.components
         validate_observations(tensordict, m.encoder.observation_shapes)
-        plan, _ = m.policy.net(m.encoder.encode(tensordict), deterministic=is_deterministic())
+        plan, _ = m.pi(m.encode(tensordict), deterministic=is_deterministic())
         tensordict.set("plan", plan)
         tensordict.set(self.out_keys[0], plan[..., 0, :])
         return tensordict
