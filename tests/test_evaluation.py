@@ -168,3 +168,23 @@ def test_the_rebuilt_evaluation_env_is_built_like_the_trainers_with_its_cube():
     assert not (cube == default_cube).all()  # a default-seeded env holds another cube
     _, old_run_cube = proprio_and_cube(evaluation_env({k: v for k, v in train.items() if k != "eval_seed"}))
     assert (old_run_cube == trainers_cube).all()  # a train section without eval_seed: the default
+
+
+def test_a_transfer_schedule_evaluates_the_starting_weights_then_periodically_until_a_point(tmp_path):
+    """The paper's transfer curves: an evaluation of the starting weights (episode 0), then every ``eval_every`` up to
+    ``eval_until``, then none but the one where the run ends; a resumed run does not play episode 0 again."""
+    import json
+
+    from torchrl_mpail2.trainers.plots import EVAL_FILE, read_jsonl
+
+    trainer = _trainer(tmp_path, "train.total_episodes=4", "train.warmup_episodes=1", "train.utd=0.05",
+                       "train.eval_at_start=true", "train.eval_every=1", "train.eval_until=2", "train.eval_episodes=1")
+    trainer.train()
+    run = trainer.run_dir
+    assert [r["episode"] for r in read_jsonl(run / EVAL_FILE)] == [0, 1, 2, 4]
+    resumed = MPAIL2Trainer.resume(run, ["train.total_episodes=5"])
+    resumed.train()
+    assert [r["episode"] for r in read_jsonl(run / EVAL_FILE)] == [0, 1, 2, 4, 5]
+    assert json.loads((run / "config.json").read_text())["train"]["eval_until"] == 2
+    with pytest.raises(ConfigError, match="eval_until"):
+        apply_overrides(preset("point_mass"), ["train.eval_until=0"])

@@ -84,6 +84,12 @@ class TrainConfig:
     eval_every: int = 10
     """Evaluate every this many episodes, and where the run ends (0: never). A run shorter than this (a smoke run of a
     few episodes) reaches no evaluation and ends without one."""
+    eval_at_start: bool = False
+    """Also evaluate before the first episode (logged at episode 0): the starting weights, e.g. a transferred
+    checkpoint's (``--init-from``), as the paper's transfer curves start."""
+    eval_until: int | None = None
+    """The periodic evaluations (every ``eval_every``) stop after this episode; the run still evaluates where it ends.
+    None: every ``eval_every`` to the end (the paper's transfer runs: every 10 up to 60)."""
     eval_episodes: int = 20
     """Episodes per evaluation (50 for final numbers, as in the paper's real-world tables)."""
     eval_envs: int = 1
@@ -150,6 +156,7 @@ class TrainConfig:
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
         "ray_workers": AT_LEAST_ONE,
         "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
+        "eval_until": AT_LEAST_ONE,
         "eval_episodes": AT_LEAST_ONE, "eval_envs": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,
         "success_window": AT_LEAST_ONE, "replay_size": AT_LEAST_ONE, "threads": AT_LEAST_ONE,
         "eval_seed": NON_NEGATIVE, "video_episodes": AT_LEAST_ONE, "demo_steps_after_success": NON_NEGATIVE,

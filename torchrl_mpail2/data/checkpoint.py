@@ -63,7 +63,7 @@ def write_checkpoint(path: Path, state: dict, replay_buffer=None) -> Path:
     try:
         tmp.mkdir(parents=True)
         torch.save(state, tmp / STATE_FILE)
-        if replay_buffer is not None:
+        if replay_buffer is not None and len(replay_buffer):  # an empty buffer (before the first episode) has no rows
             dump_replay(replay_buffer, tmp / REPLAY_DIR)
         manifest = {"episodes": state.get("counters", {}).get("episodes"), "files": folder_manifest(tmp)}
         (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=1))
@@ -154,11 +154,12 @@ def dump_replay(replay_buffer, folder: Path) -> None:
     ``dumps`` copies the whole capacity, holes included (9.6 GB written in 59 s, then hashed). A buffer that has not
     wrapped around holds its steps in order from row 0, and its writer's cursor is their count: those rows alone are
     written, in TorchRL's storage layout, and :func:`load_replay` appends them in order. A full buffer is dumped
-    whole by ``dumps`` (its writer's cursor with it).
+    whole by ``dumps`` (its writer's cursor with it). An empty one cannot be written (:func:`write_checkpoint`
+    leaves its replay out).
     """
     storage = replay_buffer._storage
     length = len(storage)
-    if length == storage.max_size or not length:
+    if length == storage.max_size:
         replay_buffer.dumps(folder)
         return
     stored_dir = Path(folder) / "storage"

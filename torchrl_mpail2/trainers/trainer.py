@@ -235,6 +235,8 @@ class MPAIL2Trainer(RunCheckpoints):
         start = self._launch_start = time.perf_counter()
         evaluation, evaluates_at_end = None, self._evaluates_at_end()
         stream = EpisodeStream(self._collector, restarts=self.counters["warnings"])
+        if t.eval_at_start and self.counters["episodes"] == 0 and not stop.requested:
+            evaluation = self.logger.eval_at(0) or self._evaluate_and_checkpoint()  # the starting weights
         try:
             while self.counters["episodes"] < t.total_episodes and not self._should_stop(stop, start):
                 # interact using the planner (Algorithm 2), random actions for the warm-up episodes
@@ -254,7 +256,9 @@ class MPAIL2Trainer(RunCheckpoints):
                     for each in records:
                         self.logger.log_episode(each)
                 done, added = self.counters["episodes"], len(episodes)
-                if crossed_multiple(done, added, t.eval_every) or (evaluates_at_end and done >= t.total_episodes):
+                periodic = crossed_multiple(done, added, t.eval_every) and (t.eval_until is None
+                                                                            or done - added < t.eval_until)
+                if periodic or (evaluates_at_end and done >= t.total_episodes):
                     evaluation = self._evaluate_and_checkpoint()
                 with timer("checkpoint"):
                     if crossed_multiple(done, added, t.checkpoint_every):
