@@ -70,13 +70,13 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
     if threads:
         torch.set_num_threads(threads)
     path = Path(path)
-    agent = MPAIL2Agent.from_checkpoint(path)
-    train = agent.run_config["train"]
+    train = _run_config(path)["train"]
     first_seed = run_eval_seed(train) + (HELD_OUT_SEED_OFFSET if held_out else 0)
     seeds = evaluation_seeds(first_seed, episodes)
-    env = evaluation_env(train)
-    start = time.perf_counter()
+    env = evaluation_env(train)  # built once: the agent takes its specs from it
     try:
+        agent = MPAIL2Agent.from_checkpoint(path, env)
+        start = time.perf_counter()
         outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting, progress=progress)
     finally:
         env.close()
@@ -86,6 +86,14 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
             "trained_episodes": ckpt.checkpoint_episodes(path), "episodes_set": "held_out" if held_out else "fixed",
             "first_seed": first_seed, "acting": acting, **summary, "success_any_step_ci": [low, high],
             "seconds": time.perf_counter() - start}
+
+
+def _run_config(path: Path) -> dict:
+    """The run config a checkpoint holds (verified against its manifest), refused by name where it has none."""
+    config = ckpt.read_checkpoint(path).get("config")
+    if not isinstance(config, dict) or "train" not in config:
+        raise ckpt.CheckpointError(f"{path} holds no run config (sections train, model, loss, planner)")
+    return config
 
 
 def export_agent(source: str | Path, out: str | Path) -> Path:
