@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.agents.mpail2 import run_config_of
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, evaluate_episodes, evaluation_env,
                                                 evaluation_seeds, run_eval_seed, summarize_outcomes)
@@ -70,12 +71,13 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
     if threads:
         torch.set_num_threads(threads)
     path = Path(path)
-    train = _run_config(path)["train"]
+    state = ckpt.read_checkpoint(path)  # read once: the run's config builds the env, the agent takes its specs from it
+    train = run_config_of(state, path)["train"]
     first_seed = run_eval_seed(train) + (HELD_OUT_SEED_OFFSET if held_out else 0)
     seeds = evaluation_seeds(first_seed, episodes)
-    env = evaluation_env(train)  # built once: the agent takes its specs from it
+    env = evaluation_env(train)
     try:
-        agent = MPAIL2Agent.from_checkpoint(path, env)
+        agent = MPAIL2Agent.from_state(state, env, source=path)
         start = time.perf_counter()
         outcomes = evaluate_episodes(env, agent.policy, seeds, agent.planner, acting=acting, progress=progress)
     finally:
@@ -86,14 +88,6 @@ def evaluate_checkpoint(path: str | Path, episodes: int = 50, *, held_out: bool 
             "trained_episodes": ckpt.checkpoint_episodes(path), "episodes_set": "held_out" if held_out else "fixed",
             "first_seed": first_seed, "acting": acting, **summary, "success_any_step_ci": [low, high],
             "seconds": time.perf_counter() - start}
-
-
-def _run_config(path: Path) -> dict:
-    """The run config a checkpoint holds (verified against its manifest), refused by name where it has none."""
-    config = ckpt.read_checkpoint(path).get("config")
-    if not isinstance(config, dict) or "train" not in config:
-        raise ckpt.CheckpointError(f"{path} holds no run config (sections train, model, loss, planner)")
-    return config
 
 
 def export_agent(source: str | Path, out: str | Path) -> Path:

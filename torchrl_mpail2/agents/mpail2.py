@@ -197,11 +197,14 @@ class MPAIL2Agent:
             CheckpointError: the checkpoint is missing or damaged (the message names the file).
         """
         path = Path(path)
-        state = ckpt.read_checkpoint(path)
-        config = state.get("config")
-        if not isinstance(config, dict) or not {"train", "model", "loss", "planner"} <= set(config):
-            raise ckpt.CheckpointError(f"{path} holds no run config (sections train, model, loss, planner)")
-        config = migrate_config_data(config)
+        return cls.from_state(ckpt.read_checkpoint(path), env, source=path, with_optimizers=with_optimizers,
+                              device=device)
+
+    @classmethod
+    def from_state(cls, state: dict, env=None, *, source: str | Path = "the checkpoint", with_optimizers: bool = False,
+                   device: torch.device | str = "cpu") -> "MPAIL2Agent":
+        """:meth:`from_checkpoint` on a checkpoint's state already read (``source`` names it in errors)."""
+        config = run_config_of(state, source)
         train = config["train"]
         own_env = env is None
         if own_env:
@@ -218,7 +221,7 @@ class MPAIL2Agent:
         except (ckpt.CheckpointError, KeyError, ValueError) as error:
             if own_env:
                 raise
-            raise ckpt.CheckpointError(f"{path} was written for train.env={train['env']!r} (train.obs="
+            raise ckpt.CheckpointError(f"{source} was written for train.env={train['env']!r} (train.obs="
                                        f"{train['obs']!r}); the env given ({_describe_specs(env)}) does not fit it: "
                                        f"{error}") from error
         finally:
@@ -226,6 +229,18 @@ class MPAIL2Agent:
                 env.close()
         agent.run_config = config
         return agent
+
+
+def run_config_of(state: dict, source: str | Path) -> dict:
+    """The run config a checkpoint's ``state`` holds, in today's fields (:func:`migrate_config_data`).
+
+    Raises:
+        CheckpointError: it holds none (sections train, model, loss, planner), naming ``source``.
+    """
+    config = state.get("config")
+    if not isinstance(config, dict) or not {"train", "model", "loss", "planner"} <= set(config):
+        raise ckpt.CheckpointError(f"{source} holds no run config (sections train, model, loss, planner)")
+    return migrate_config_data(config)
 
 
 def load_weights(module: torch.nn.Module, weights: dict, source: str) -> None:
