@@ -24,3 +24,20 @@ def test_an_env_without_a_simulator_state_is_refused():
     env, agent = point_mass_agent()
     with pytest.raises(ValueError, match="needs a robosuite env"):
         visited_states(agent, env, [0])
+
+
+def test_a_compartmentalised_latent_is_probed_block_by_block():
+    from types import SimpleNamespace
+
+    from torchrl_mpail2.config import ModelConfig
+    from torchrl_mpail2.modules import MPAIL2Modules
+
+    torch.manual_seed(0)
+    cfg = ModelConfig(latent_dim=32, hidden_dims=(32, 32), vector_coder_hidden=32, coder_dim=32, fuse_latent=False)
+    agent = SimpleNamespace(modules=MPAIL2Modules({"arm": (3,), "cube": (3,)}, 2, cfg))
+    arm, cube = torch.rand(400, 3) * 2 - 1, torch.rand(400, 3) * 2 - 1
+    result = latent_content(agent, TensorDict({"arm": arm, "cube": cube}, [400]), {"cube_pos": cube.clone()})
+    blocks = result["blocks"]
+    assert set(blocks) == {"arm", "cube"}
+    assert blocks["cube"]["cube_pos"] > 0.8 and blocks["arm"]["cube_pos"] < 0.2  # each block holds its own key
+    assert result["cube_pos"]["held_out_r2"] > 0.8

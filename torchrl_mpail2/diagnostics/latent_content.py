@@ -12,7 +12,9 @@ checkpoint's agent (the plan's mean). Each observation is encoded and paired wit
 positions; a :class:`~torchrl_mpail2.diagnostics.latent_probe.LatentProbe` is fitted to each (from the latent
 standardised per dimension) on 80% of the pairs of a set and scored on the rest (``held_out_r2``: 1 reads it exactly, 0 no better than the mean). Also reported per set:
 the latent's spread (the mean over dimensions of its std over the states) and, per observation key, the spread of
-that key's coder output relative to its mean magnitude.
+that key's coder output relative to its mean magnitude, and for a compartmentalised latent
+(``model.fuse_latent=false``) each key's block probed alone (``blocks``: its spread and the probes' ``held_out_r2``):
+the video-only setting's reward reads the table camera's block only, so that block must hold the cube.
 """
 from __future__ import annotations
 
@@ -79,6 +81,12 @@ def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch
         _, stats = fit_latent_probe(z_std, y.clone(), seed=seed)
         out[key] = {"held_out_r2": stats["held_out_r2"], "held_out_mae_m": stats["held_out_mae"],
                     "std_m": float(y.std(0).mean())}
+    if not agent.modules.cfg.fuse_latent:  # a compartmentalised latent: what each key's block holds on its own
+        out["blocks"] = {}
+        for block, where in net.latent_slices.items():
+            zb = z_std[:, where]
+            out["blocks"][block] = {"spread": float(z[:, where].std(0).mean()), **{
+                key: fit_latent_probe(zb, y.clone(), seed=seed)[1]["held_out_r2"] for key, y in targets.items()}}
     return out
 
 
