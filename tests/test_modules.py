@@ -274,3 +274,18 @@ def test_the_world_model_verbs_are_the_networks_walked_forward():
     assert mean_plan.shape == (5, 3, 2) and log_prob.shape == (5,)
     td = TensorDict({"observation": torch.randn(5, 3)}, [5])
     torch.testing.assert_close(m.encode(td), m.encoder.encode(td))
+
+
+def test_the_step_by_step_walk_gives_the_batched_path_and_rewards():
+    from torchrl_mpail2.modules.world_model import chain_rewards, imagine_with_rewards, rollout_latents
+
+    torch.manual_seed(0)
+    m = tiny_modules(obs_dim=3, action_dim=2, horizon=4)
+    z0, plan = torch.randn(6, m.cfg.latent_dim), torch.rand(6, 4, 2) * 2 - 1
+    latents, rewards = imagine_with_rewards(m.dynamics.module, m.reward.module, z0, plan)
+    batched = rollout_latents(m.dynamics.module, z0, plan)
+    assert latents.shape == (5, 6, m.cfg.latent_dim) and rewards.shape == (4, 6)
+    torch.testing.assert_close(latents, batched)
+    torch.testing.assert_close(rewards, chain_rewards(m.reward.module, batched), rtol=1e-6, atol=1e-6)
+    empty = imagine_with_rewards(m.dynamics.module, m.reward.module, z0, plan[:, :0])
+    assert empty[0].shape == (1, 6, m.cfg.latent_dim) and empty[1].shape == (0, 6)

@@ -293,3 +293,22 @@ def test_a_planner_whose_compilation_fails_warns_once_and_plans_eagerly(monkeypa
     assert len(calls) == 1  # tried once, then eager for good
     warnings = [r.getMessage() for r in caplog.records if "compiling the plan scoring failed" in r.getMessage()]
     assert len(warnings) == 1 and "InvalidCxxCompiler" in warnings[0]
+
+
+@pytest.mark.parametrize("terminal_value", ["policy_action", "plan_last_action"])
+def test_the_plan_score_is_the_losses_imagined_return_at_lambda_one(terminal_value):
+    """One imagined return: Algorithm 2's plan score is the value target's and actor's return (Eq. 6's path, its
+    terminal value in the same form) in the TD(lambda) form at lambda = 1, with Q the mean of the planner's heads and
+    the policy's mean acting at the end."""
+    from torchrl_mpail2.objectives.imagination import imagined_lambda_return
+
+    torch.manual_seed(0)
+    m = tiny_modules(obs_dim=3, action_dim=2, horizon=4)
+    planner = LatentMPPIPlanner(m, Bounded(-1, 1, (2,)), PlannerConfig(terminal_value=terminal_value), gamma=0.9)
+    z, plans, heads = torch.randn(2, m.cfg.latent_dim), torch.rand(2, 5, 4, 2) * 2 - 1, torch.tensor([0, 1])
+    scores = planner.score(z, plans, heads)
+    G = imagined_lambda_return(
+        z.repeat_interleave(5, 0), plans.reshape(10, 4, 2), m.dynamics.module, m.reward.module,
+        lambda zk, a: m.q(zk, a, heads).mean(0), lambda zk: m.pi(zk, deterministic=True), gamma=0.9, lmbda=1.0,
+        return_form="td_lambda", terminal_value=terminal_value)
+    torch.testing.assert_close(scores, G.view(2, 5), rtol=1e-5, atol=1e-5)

@@ -105,6 +105,43 @@ def multi_step_return(r: Tensor, q: Tensor, gamma: float, lmbda: float, form: st
     return G if form == "td_lambda" else lmbda * q[..., 0] + (1.0 - lmbda) * G
 
 
+#: Where an imagined path's return hands over to the value :math:`Q_\zeta` (see :func:`rewarded_steps`).
+TERMINAL_VALUES = ("policy_action", "plan_last_action")
+
+
+def rewarded_steps(horizon: int, terminal_value: str) -> int:
+    r"""``K``, the rewards an ``H``-step imagined path earns before :math:`Q_\zeta` closes its return, by the
+    terminal-value form (one of :data:`TERMINAL_VALUES`):
+
+    * ``"policy_action"``: ``K = H``, :math:`Q_\zeta(\hat z_H, a_H)` with :math:`a_H` the policy's first action at
+      :math:`\hat z_H` (Eq. 6, TD-MPC2);
+    * ``"plan_last_action"``: ``K = H - 1``, :math:`Q_\zeta(\hat z_{H-1}, a_{H-1})` with the plan's own last action
+      (the authors' planner).
+
+    Examples:
+        >>> rewarded_steps(5, "policy_action"), rewarded_steps(5, "plan_last_action")
+        (5, 4)
+    """
+    if terminal_value not in TERMINAL_VALUES:
+        raise ValueError(f"unknown terminal_value {terminal_value!r}; choose from {TERMINAL_VALUES}")
+    return horizon - (terminal_value == "plan_last_action")
+
+
+def n_step_return(r: Tensor, q_end: Tensor, gamma: float) -> tuple[Tensor, Tensor]:
+    r"""The two terms of the ``K``-step return :math:`\sum_{k<K}\gamma^k r_k + \gamma^K q_K` (Algorithm 2's plan
+    score; :func:`td_lambda_return` at :math:`\lambda = 1`): ``r [..., K]``, ``q_end [...]`` -> ``(reward sum,
+    terminal value)``, each ``[...]``.
+
+    Examples:
+        >>> r, q = torch.tensor([1.0, 2.0]), torch.tensor([10.0, 20.0, 30.0])
+        >>> rewards, terminal = n_step_return(r, q[-1], 0.5)
+        >>> rewards.item(), terminal.item(), td_lambda_return(r, q, 0.5, 1.0).item()
+        (2.0, 7.5, 9.5)
+    """
+    discounts = gamma ** torch.arange(r.shape[-1], dtype=r.dtype, device=r.device)
+    return (r * discounts).sum(-1), gamma ** r.shape[-1] * q_end
+
+
 def gradient_penalty(critic, x_expert: Tensor, x_agent: Tensor, generator: torch.Generator | None = None) -> Tensor:
     r"""WGAN-GP penalty of Appendix A.2 on per-sample uniform interpolations.
 

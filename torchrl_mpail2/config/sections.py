@@ -11,6 +11,7 @@ from typing import ClassVar
 
 from torchrl_mpail2.config.fields import (AT_LEAST_ONE, FINITE, NON_NEGATIVE, OPEN_UNIT_INTERVAL, POSITIVE,
                                           UNIT_INTERVAL, ConfigError, Range, check_fields)
+from torchrl_mpail2.functional import RETURN_FORMS, TERMINAL_VALUES
 
 
 @dataclass
@@ -137,7 +138,6 @@ class LossConfig:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        from torchrl_mpail2.functional import RETURN_FORMS
 
         if self.value_head_reduce not in ("sum", "mean"):
             raise ConfigError(f"LossConfig.value_head_reduce must be 'sum' or 'mean', got {self.value_head_reduce!r}")
@@ -147,8 +147,6 @@ class LossConfig:
             raise ConfigError(f"unknown LossConfig.return_form {self.return_form!r}; choose from {RETURN_FORMS}")
 
 
-#: Forms of the planner's terminal value (:attr:`PlannerConfig.terminal_value`).
-TERMINAL_VALUES = ("policy_action", "plan_last_action")
 #: ``torch.compile`` modes of the plan scoring (:attr:`PlannerConfig.compile_mode`).
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs")
 

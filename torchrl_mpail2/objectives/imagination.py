@@ -11,7 +11,7 @@ from contextlib import contextmanager, nullcontext
 import torch
 from torch import Tensor, nn
 
-from torchrl_mpail2.functional import RETURN_FORMS, multi_step_return
+from torchrl_mpail2.functional import RETURN_FORMS, multi_step_return, rewarded_steps
 from torchrl_mpail2.modules.dynamics import DynamicsNet
 from torchrl_mpail2.modules.policy import PlanPolicyNet
 from torchrl_mpail2.modules.reward import RewardNet
@@ -41,12 +41,14 @@ def ensemble_estimate(qnet: QEnsembleNet, reduce: str) -> Callable[[Tensor, Tens
 def imagined_lambda_return(
     z0: Tensor, plan: Tensor, dynamics: DynamicsNet, reward: RewardNet, q_estimate: Callable[[Tensor, Tensor], Tensor],
     policy: PlanPolicyNet, gamma: float, lmbda: float, return_form: str = "paper",
-    stop_gradient_dtype: torch.dtype | None = None,
+    stop_gradient_dtype: torch.dtype | None = None, terminal_value: str = "policy_action",
 ) -> Tensor:
     r"""Lambda-return of a plan rolled out through the latent model.
 
     ``q`` at step ``t+H`` needs an action beyond the H-step plan; as in TD-MPC2 it is the first
-    step of a policy sample at :math:`\hat z_{t+H}`.
+    step of a policy sample at :math:`\hat z_{t+H}` (``terminal_value="policy_action"``). With
+    ``"plan_last_action"`` the path stops a step short and ends on the plan's own last action, as the planner's
+    score of that form (:func:`~torchrl_mpail2.functional.rewarded_steps`).
 
     Args:
         z0 (Tensor): start latents ``[M, Z]``.
@@ -61,13 +63,16 @@ def imagined_lambda_return(
     """
     dtype = None if torch.is_grad_enabled() else stop_gradient_dtype
     low_precision = torch.autocast(z0.device.type, dtype=dtype) if dtype is not None else nullcontext()
+    rewarded = rewarded_steps(plan.shape[-2], terminal_value)
     with low_precision:
-        latents = rollout_latents(dynamics, z0, plan)
+        latents = rollout_latents(dynamics, z0, plan[..., :rewarded, :])
         r = chain_rewards(reward, latents)
-    # sampled in float32 in any case, so that both precisions draw the same random numbers
-    last_action = policy(latents[-1].float())[0][..., 0, :]
+    if rewarded < plan.shape[-2]:
+        last_action = plan[..., rewarded, :]
+    else:  # sampled in float32 in any case, so that both precisions draw the same random numbers
+        last_action = policy(latents[-1].float())[0][..., 0, :]
     with low_precision:
-        actions = torch.cat([plan.transpose(0, 1), last_action.unsqueeze(0)], 0)
+        actions = torch.cat([plan[..., :rewarded, :].transpose(0, 1), last_action.unsqueeze(0)], 0)
         q = q_estimate(latents, actions)
     return multi_step_return(r.transpose(0, 1).float(), q.transpose(0, 1).float(), gamma, lmbda, return_form)
 

@@ -12,10 +12,11 @@ from torchrl.envs import TensorDictPrimer
 from torchrl.modules.planners import MPCPlannerBase
 
 from torchrl_mpail2.config import PlannerConfig
-from torchrl_mpail2.functional import mppi_weights
+from torchrl_mpail2.functional import mppi_weights, n_step_return, rewarded_steps
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.factory import MPAIL2Modules, check_action_spec
 from torchrl_mpail2.modules.policy import is_deterministic
+from torchrl_mpail2.modules.world_model import imagine_with_rewards
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
 #: Where the warm start (the previous call's final plan mean ``[*B, H, A]``) lives in the tensordict when the env
@@ -192,40 +193,31 @@ class LatentMPPIPlanner(MPCPlannerBase):
         batch, num = plans.shape[:2]
         zk = z.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
         actions = plans.to(z.dtype).reshape(batch * num, self.horizon, self.action_dim)
+        rewarded = rewarded_steps(self.horizon, self.cfg.terminal_value)
         m = self.components
-        h_now0, _ = m.reward.module.project(z)  # the start is shared by all candidates: project once
-        h_now = h_now0.unsqueeze(1).expand(batch, num, -1).reshape(batch * num, -1)
-        rewards, terminal = self._return_parts(zk, h_now, actions, heads, lambda k, zk: m.next(zk, actions[:, k]))
+        latents, r = imagine_with_rewards(m.dynamics.module, m.reward.module, zk, actions[:, :rewarded])
+        rewards, terminal = self._return_parts(latents, actions, heads, r)
         return rewards.view(batch, num), terminal.view(batch, num)
 
     def path_return_parts(self, latents: Tensor, actions: Tensor, heads: Tensor) -> tuple[Tensor, Tensor]:
         """:meth:`score_parts` of a given latent path instead of an imagined one: ``latents [B, H + 1, Z]`` (e.g. the
         encoded observations of a trajectory the simulator played with ``actions [B, H, A]``) -> ``([B], [B])``.
         What the learned reward and value make of a real outcome, next to what they make of the imagined one."""
-        h_now, _ = self.components.reward.module.project(latents[:, 0])
-        return self._return_parts(latents[:, 0], h_now, actions.to(latents.dtype), heads,
-                                  lambda k, zk: latents[:, k + 1])
+        rewarded = rewarded_steps(self.horizon, self.cfg.terminal_value)
+        return self._return_parts(latents.transpose(0, 1)[:rewarded + 1], actions.to(latents.dtype), heads)
 
-    def _return_parts(self, zk: Tensor, h_now: Tensor, actions: Tensor, heads: Tensor,
-                      next_latent) -> tuple[Tensor, Tensor]:
-        """Algorithm 2's return of ``actions [N, H, A]`` from ``zk [N, Z]`` (``h_now``: its reward projection), the
-        latents after each step given by ``next_latent(k, z_k)``."""
-        m, cfg = self.components, self.cfg
-        reward = m.reward.module
-        total = torch.zeros(zk.shape[0], dtype=torch.float32, device=zk.device)
-        # with the plan's own last action scoring the end, the last reward is left to Q
-        rewarded = self.horizon - (cfg.terminal_value == "plan_last_action")
-        for k in range(rewarded):
-            zk = next_latent(k, zk)
-            h_now_next, h_next = reward.project(zk)
-            total = total + self.gamma ** k * reward.from_projection(h_now, h_next).squeeze(-1).float()
-            h_now = h_now_next
-        if rewarded < self.horizon:
-            last_action = actions[:, rewarded]
-        else:
-            last_action = m.pi(zk, deterministic=True)[0][:, 0]
-        q = m.q(zk, last_action, heads).float().mean(0)
-        return total, self.gamma ** rewarded * q
+    def _return_parts(self, latents: Tensor, actions: Tensor, heads: Tensor, r: Tensor | None = None
+                      ) -> tuple[Tensor, Tensor]:
+        """Algorithm 2's return (:func:`~torchrl_mpail2.functional.n_step_return`) of the latent path ``[K + 1, N, Z]``
+        reached by ``actions [N, H, A]`` (``r [K, N]``: its rewards, when already walked): ``K`` rewards, then Q (the
+        mean of ``heads``) at :math:`\hat z_K` with the plan's action ``K`` or, where ``K = H``, the policy mean's
+        first action there. The losses' return of the same path at lambda 1 (tests/test_planner.py)."""
+        m = self.components
+        rewarded, z_end = latents.shape[0] - 1, latents[-1]
+        last_action = actions[:, rewarded] if rewarded < self.horizon else m.pi(z_end, deterministic=True)[0][:, 0]
+        q_end = m.q(z_end, last_action, heads).float().mean(0)
+        r = m.rewards(latents) if r is None else r
+        return n_step_return(r.float().transpose(0, 1), q_end, self.gamma)
 
     def _scorer(self):
         """:meth:`score`, compiled on first use with ``cfg.compile`` (kept out of the module's attributes, so the
