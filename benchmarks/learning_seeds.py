@@ -5,6 +5,8 @@
     python benchmarks/learning_seeds.py NAME --summarize           # rewrite the results from the run folders
     python benchmarks/learning_seeds.py --compare NAME [NAME ...] --out docs/results/learning/compare.png
     python benchmarks/learning_seeds.py NAME --merge SOURCE [SOURCE ...]  # one result from several results' seeds
+    python benchmarks/learning_seeds.py NAME --preset push_state train.env=robosuite/PushMirrored \\
+        --init-from runs/learning/push_state/seed{seed}/checkpoints/last --transfer world-model   # transfer
 
 Each seed trains in its own process (``--parallel`` at a time, one torch thread each) under
 ``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done, one
@@ -83,7 +85,13 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
     shutil.rmtree(run_dir, ignore_errors=True)  # nothing checkpointed yet: start afresh
     run_dir.parent.mkdir(parents=True, exist_ok=True)
     every = f"train.eval_every={args.eval_every}"
-    return [*base, "--preset", args.preset, f"train.seed={seed}", f"train.run_dir={run_dir}", "train.threads=1",
+    start = []
+    if getattr(args, "init_from", None):  # a transfer run: each seed starts from its own source seed's weights
+        source = Path(args.init_from.format(seed=seed))
+        if not source.exists():
+            raise SystemExit(f"--init-from: seed {seed}'s source checkpoint {source} does not exist")
+        start = ["--init-from", str(source), "--transfer", args.transfer]
+    return [*base, "--preset", args.preset, *start, f"train.seed={seed}", f"train.run_dir={run_dir}", "train.threads=1",
             "train.progress=false", f"train.total_episodes={args.episodes}", f"train.max_wall_s={args.budget_min * 60}",
             every, f"train.checkpoint_every={getattr(args, 'checkpoint_every', None) or args.eval_every}",
             f"train.eval_episodes={args.eval_episodes}", *overrides]
@@ -447,6 +455,10 @@ def main() -> None:
     p.add_argument("--checkpoint-every", type=int, default=None,
                    help="save a checkpoint every this many episodes (default: at each evaluation); the paper's Best "
                         "picks among checkpoints every 10 (benchmarks/evaluate_checkpoints.py scores them)")
+    p.add_argument("--init-from", metavar="CKPT", help="transfer: start each seed from this checkpoint folder, where "
+                   "{seed} stands for the seed (e.g. runs/learning/push_state/seed{seed}/checkpoints/last)")
+    p.add_argument("--transfer", choices=("all", "world-model"), default="all",
+                   help="what --init-from carries over (python -m torchrl_mpail2.train --transfer)")
     p.add_argument("--parallel", type=int, default=2)
     p.add_argument("--held-out", type=int, default=50, metavar="N",
                    help="score each finished seed's Best and last evaluated checkpoints on N held-out episodes (the "

@@ -290,3 +290,20 @@ def test_the_summary_keeps_no_absolute_paths_of_this_machine(bench, tmp_path):
     assert r["config"]["train"]["run_dir"] == "runs/learning/demo/seed0"
     assert r["config"]["train"]["demos"] == "<elsewhere>/demos_pm"
     assert str(tmp_path) not in (tmp_path / "results" / "demo.json").read_text()
+
+
+def test_a_transfer_seed_starts_from_its_own_source_seed_and_resumes_from_its_own_checkpoint(bench, tmp_path):
+    source = tmp_path / "push" / "seed{seed}" / "checkpoints" / "last"
+    (tmp_path / "push" / "seed1" / "checkpoints" / "last").mkdir(parents=True)
+    run = tmp_path / "mirrored" / "seed1"
+    args = type("Args", (), {"episodes": 150, "extend_min": 0.0, "preset": "push_state", "budget_min": 10.0,
+                             "eval_every": 10, "eval_episodes": 20, "checkpoint_every": None,
+                             "init_from": str(source), "transfer": "world-model"})()
+    cmd = bench.seed_command(run, 1, args, ["train.env=robosuite/PushMirrored"])
+    at = cmd.index("--init-from")
+    assert cmd[at + 1:at + 4] == [str(tmp_path / "push" / "seed1" / "checkpoints" / "last"), "--transfer", "world-model"]
+    assert cmd[-1] == "train.env=robosuite/PushMirrored"
+    with pytest.raises(SystemExit, match=r"seed 2's source checkpoint .*seed2"):
+        bench.seed_command(tmp_path / "mirrored" / "seed2", 2, args, [])
+    (run / "checkpoints" / "last").mkdir(parents=True)  # interrupted: it resumes from its own weights, not the source's
+    assert "--init-from" not in bench.seed_command(run, 1, args, [])
