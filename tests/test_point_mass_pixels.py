@@ -26,7 +26,9 @@ def _blue_centroid(frames: torch.Tensor) -> torch.Tensor:
     """``[*B, 2]`` positions of the pixels more than half covered by the blue point, read with the picture's
     geometry written out here (column 0 at x = -1.5, row 0 at y = +1.5), independently of the drawing code."""
     r, g, b = frames.float().unbind(-3)
-    weight = (b - (r + g) / 2 > 85).float()  # blue 220 against red and green 40 and 60; white and green are <= 0
+    # more than half blue (40, 60, 220): over white (255, 255, 255, green dimmed by the glow) red falls below 147.5,
+    # over the goal's green (120, 200, 120) blue rises above 170; the glow touches neither channel
+    weight = ((r < 147.5) & (b > 170)).float()
     centres = (torch.arange(SIZE) + 0.5) / SIZE * 2 * POSITION_LIMIT - POSITION_LIMIT
     total = weight.sum((-2, -1))
     assert (total > 0).all(), "no blue point in a frame"
@@ -60,9 +62,14 @@ def test_the_point_moves_in_the_picture_where_the_state_moves():
     # across the whole box too, x to the right and y up
     grid = torch.tensor([[-1.2, -1.2], [-1.2, 1.2], [1.2, -1.2], [0.5, 0.0], [0.0, 0.5], [0.03, -0.02]])
     assert torch.allclose(_blue_centroid(draw_arena(grid)), grid, atol=0.05)
-    # the goal disc is green and stays where it is
-    frame = draw_arena(torch.tensor([1.0, 1.0]))
+    # the goal disc is green and stays where it is; the glow dims the green channel alone, more near the point
+    frame = draw_arena(torch.tensor([1.0, 1.0]), glow=0.0)
     assert frame[:, SIZE // 2, SIZE // 2].tolist() == [120, 200, 120] and frame[:, 0, 0].tolist() == [255, 255, 255]
+    glowing = draw_arena(torch.tensor([1.0, 1.0])).int()
+    assert torch.equal(glowing[[0, 2]], frame.int()[[0, 2]])
+    dimmed = frame.int()[1] - glowing[1]
+    beside, farther, far = dimmed[10, 57], dimmed[10, 36], dimmed[53, 10]  # 0.2, 0.8 and 2.8 away from (1, 1)
+    assert (dimmed >= 0).all() and beside > 60 and beside > farther > far and far == 0
 
 
 def test_a_sub_pixel_step_changes_the_picture():

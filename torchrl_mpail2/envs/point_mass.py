@@ -52,6 +52,11 @@ IMAGE_KEY = "external_image"
 BACKGROUND_RGB, GOAL_RGB, POINT_RGB = (255, 255, 255), (120, 200, 120), (40, 60, 220)
 #: Radius of the drawn point in pixels, whatever the picture's size (0.12 position units at 64 x 64).
 POINT_RADIUS_PIXELS = 2.5
+#: The glow around the point: a Gaussian of this std (position units) in the green channel alone, darkening it by
+#: up to ``GLOW_PEAK`` of the way to ``GLOW_GREEN``. Without it, pictures of any two positions more than a point's
+#: width apart differ equally, whatever the distance; with it they differ more the farther apart the positions are
+#: (see ``point_mass_pixels``). Red and blue are left to the point, so :func:`locate_point` reads it exactly.
+GLOW_SIGMA, GLOW_PEAK, GLOW_GREEN = 0.6, 0.6, 100.0
 
 
 @functools.lru_cache(maxsize=8)
@@ -72,15 +77,17 @@ def _coverage(distance: torch.Tensor, radius: float, pixel: float) -> torch.Tens
     return ((radius - distance) / pixel + 0.5).clamp(0.0, 1.0)
 
 
-def draw_arena(position: torch.Tensor, size: int = IMAGE_SIZE) -> torch.Tensor:
+def draw_arena(position: torch.Tensor, size: int = IMAGE_SIZE, glow: float = GLOW_SIGMA) -> torch.Tensor:
     """Pictures of the arena with the point at ``position``: the pixel observation and the video frames.
 
     The picture spans the position box ``[-1.5, 1.5]^2`` (x to the right, y up); the goal disc (radius
-    ``SUCCESS_RADIUS``) is green, the point (radius ``POINT_RADIUS_PIXELS``) blue over it, on white.
+    ``SUCCESS_RADIUS``) is green, the point (radius ``POINT_RADIUS_PIXELS``) blue over it, on white, with a soft
+    glow around the point in the green channel (:data:`GLOW_SIGMA`).
 
     Args:
         position (Tensor): ``[*B, 2]`` positions ``(x, y)``.
         size (int): side ``S`` of the pictures in pixels. Defaults to 64.
+        glow (float): std of the glow in position units; 0 draws none. Defaults to :data:`GLOW_SIGMA`.
 
     Returns:
         Tensor: ``[*B, 3, S, S]`` uint8 RGB pictures, on ``position``'s device.
@@ -92,10 +99,17 @@ def draw_arena(position: torch.Tensor, size: int = IMAGE_SIZE) -> torch.Tensor:
         >>> frames[1, :, 53, 53].tolist()  # the pixel at (1.0, -1.0) is the point's blue
         [40, 60, 220]
     """
+    if glow < 0:
+        raise ValueError(f"draw_arena: glow must be >= 0 (0 draws none), got {glow}")
     x, y, empty = _empty_arena(int(size), position.device)
     pixel = 2 * POSITION_LIMIT / size
     px, py = position[..., 0, None, None].float(), position[..., 1, None, None].float()
-    inside = _coverage(torch.hypot(x - px, y - py), POINT_RADIUS_PIXELS * pixel, pixel)
+    distance = torch.hypot(x - px, y - py)
+    inside = _coverage(distance, POINT_RADIUS_PIXELS * pixel, pixel)
+    if glow > 0:
+        shade = GLOW_PEAK * torch.exp(-0.5 * (distance / glow) ** 2)
+        red, green, blue = empty.expand(*shade.shape[:-2], 3, *shade.shape[-2:]).unbind(-3)
+        empty = torch.stack([red, torch.lerp(green, torch.full_like(green, GLOW_GREEN), shade), blue], -3)
     point = torch.tensor(POINT_RGB, dtype=torch.float32, device=position.device).view(3, 1, 1)
     return torch.lerp(empty, point, inside.unsqueeze(-3)).round().to(torch.uint8)
 
@@ -103,8 +117,8 @@ def draw_arena(position: torch.Tensor, size: int = IMAGE_SIZE) -> torch.Tensor:
 def locate_point(image: torch.Tensor) -> torch.Tensor:
     """Where the point is in pictures of :func:`draw_arena`: the centroid of its coverage, in position units.
 
-    Each pixel's share of the point is read back from its colour (the arena without the point is known), so the
-    estimate follows sub-pixel moves: within 0.006 position units (an eighth of a pixel at 64 x 64) while the whole
+    Each pixel's share of the point is read back from its red channel (the arena without the point is known there:
+    the glow leaves red alone), so the estimate follows sub-pixel moves: within 0.006 position units (an eighth of a pixel at 64 x 64) while the whole
     point is in the picture (``|x|, |y| < 1.38``), within 0.06 when the frame cuts it at the box's edge.
 
     Args:
@@ -119,9 +133,8 @@ def locate_point(image: torch.Tensor) -> torch.Tensor:
         True
     """
     x, y, empty = _empty_arena(image.shape[-1], image.device)
-    towards_point = torch.tensor(POINT_RGB, dtype=torch.float32, device=image.device).view(3, 1, 1) - empty
-    share = ((image.float() - empty) * towards_point).sum(-3) / towards_point.pow(2).sum(-3)
-    share = share.clamp(0.0, 1.0)
+    red = empty[0]
+    share = ((image[..., 0, :, :].float() - red) / (POINT_RGB[0] - red)).clamp(0.0, 1.0)
     total = share.sum((-2, -1)).clamp_min(1e-6)
     return torch.stack([(share * x).sum((-2, -1)) / total, (share * y).sum((-2, -1)) / total], dim=-1)
 
