@@ -346,3 +346,14 @@ def test_save_demos_names_a_folder_moved_into_place_by_another_writer(tmp_path, 
     with pytest.raises(FileExistsError, match="written meanwhile by another process"):
         save_demos(demos, target)
     assert load_demos(target).num_episodes == 1 and [p.name for p in tmp_path.iterdir()] == ["pm"]
+
+
+def test_a_runs_cached_demos_record_the_env_options_not_the_experts():
+    from torchrl_mpail2.trainers import apply_overrides, preset
+    from torchrl_mpail2.trainers import run_demos
+
+    cfg = apply_overrides(preset("point_mass"), ["train.num_demos=1", "train.progress=false"])
+    env = make_env("point_mass")
+    demos = run_demos.load_or_record_demos(cfg, env, lambda seed=0: make_env("point_mass", seed=seed))
+    assert demos.header["env_kwargs"] == {"obs": "state"}
+    assert load_demos(run_demos.default_demo_dir(cfg)).header["env_kwargs"] == {"obs": "state"}

@@ -135,3 +135,24 @@ def test_mpail2_learns_the_point_mass_from_pixels(tmp_path):
                             run_dir=tmp_path / "run")
     summary = trainer.train()
     assert summary["last_eval"]["success_rate"] >= 0.8, summary
+
+
+def test_demos_of_pictures_drawn_otherwise_are_refused_by_name(tmp_path):
+    from torchrl_mpail2.data import load_demos, save_demos
+
+    env = make_env("point_mass", obs="pixels", seed=0)
+    demos = record_demos(env, get_expert("point_mass", env), episodes=1, seed=0, progress=False)
+    assert demos.header["pictures"] == env.pictures == "point_mass arena, glow 0.6"
+    save_demos(demos, tmp_path / "glow")
+    assert load_demos(tmp_path / "glow", env).num_episodes == 1
+    plain = PointMassEnv(seed=0, obs="pixels", glow=0.0)
+    with pytest.raises(ValueError, match=r"drawn as 'point_mass arena, glow 0.6', the env draws them as "
+                                         r"'point_mass arena, glow 0.0': record the demonstrations again"):
+        load_demos(tmp_path / "glow", plain)
+    del demos.header["pictures"]  # demonstrations saved before headers recorded the pictures
+    save_demos(demos, tmp_path / "old")
+    with pytest.raises(ValueError, match="drawn before the header recorded how"):
+        load_demos(tmp_path / "old", env)
+    assert make_env("point_mass", seed=0).pictures is None  # from state nothing is drawn
+    with pytest.raises(ValueError, match="glow must be >= 0"):
+        PointMassEnv(obs="pixels", glow=-1.0)

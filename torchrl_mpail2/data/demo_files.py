@@ -19,7 +19,7 @@ from torchrl_mpail2.data.demos import (
     EPISODE_KEY, FORMAT_NAME, FORMAT_VERSION, HEADER_FILE, INDEX_KEYS, OBSERVATIONS_DIR, STEP_KEY, DemoFormatError,
     Demonstrations, check_finite_observations, _dtype_from_name, _key_from_json,
 )
-from torchrl_mpail2.envs.keys import observation_keys_of
+from torchrl_mpail2.envs.keys import observation_keys_of, pictures_of
 
 __all__ = ["check_observation_spec", "env_options_hint", "load_demos", "save_demos"]
 
@@ -161,6 +161,13 @@ def check_observation_spec(demos: Demonstrations, observation_spec: Composite | 
             raise ValueError(f"demonstration keys {unknown} are not observation keys of the env {spec_keys}")
         spec_keys = [key for key in spec_keys if key in keys]
     if isinstance(observation_spec, EnvBase):
+        drawn, recorded = pictures_of(observation_spec), demos.header.get("pictures")
+        if drawn is not None and drawn != recorded and any(key in spec_keys for key in demos.observation_keys):
+            raise ValueError(
+                f"Demonstrations ({demos.env_id}) hold pictures "
+                f"{f'drawn as {recorded!r}' if recorded else 'drawn before the header recorded how'}, the env draws "
+                f"them as {drawn!r}: record the demonstrations again (or delete their cached folder under demos/ so "
+                "that a run records them)")
         observation_spec = observation_spec.observation_spec
     hint = env_options_hint(demos.header.get("env_kwargs"), env_kwargs)
     demo_keys = demos.observation_keys

@@ -241,8 +241,10 @@ def assemble_demonstrations(
     metadata: Sequence[dict],
     env_id: str,
     env_kwargs: dict | None = None,
+    pictures: str | None = None,
 ) -> Demonstrations:
-    """Flattens per-episode ``{key: [T + 1, ...]}`` tensors into a :class:`Demonstrations`."""
+    """Flattens per-episode ``{key: [T + 1, ...]}`` tensors into a :class:`Demonstrations` (``pictures``: how the
+    env drew its picture observations, :func:`~torchrl_mpail2.envs.keys.pictures_of`, kept in the header)."""
     if not episodes:
         raise ValueError("At least one episode is needed.")
     keys = list(episodes[0].keys())
@@ -294,6 +296,7 @@ def assemble_demonstrations(
         "note": NOT_STORED_NOTE,
         "env_id": env_id,
         "env_kwargs": dict(env_kwargs or {}),
+        **({"pictures": pictures} if pictures is not None else {}),
         "observation_keys": [
             {"key": _key_to_json(key), "shape": list(shape), "dtype": _dtype_name(dtype)}
             for key, (shape, dtype) in reference.items()

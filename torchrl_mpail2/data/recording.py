@@ -9,7 +9,7 @@ from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.demo_files import save_demos
 from torchrl_mpail2.data.demos import Demonstrations, assemble_demonstrations
-from torchrl_mpail2.envs.keys import observation_keys_of
+from torchrl_mpail2.envs.keys import observation_keys_of, pictures_of
 
 __all__ = ["record_demos"]
 
@@ -97,7 +97,7 @@ def record_demos(
         successes = [meta["success"] for meta in metadata if meta["success"] is not None]
         if successes:
             bar.set_postfix(success=f"{sum(successes) / len(successes):.2f}")
-    demos = assemble_demonstrations(recorded, metadata, env_id=env_id, env_kwargs=env_kwargs)
+    demos = assemble_demonstrations(recorded, metadata, env_id=env_id, env_kwargs=env_kwargs, pictures=pictures_of(env))
     if out is not None:
         save_demos(demos, out, overwrite=overwrite)
     return demos

@@ -15,7 +15,7 @@ from torchrl.data import Composite
 from torchrl.envs import EnvBase, InitTracker, RewardSum, StepCounter, TensorDictPrimer, TrajCounter, TransformedEnv
 
 __all__ = ["EPISODE_RETURN_KEY", "TASK_FLAG_KEYS", "TASK_REWARD_KEY", "non_observation_keys", "observation_keys_of",
-           "with_bookkeeping"]
+           "pictures_of", "with_bookkeeping"]
 
 #: Flags the project's environments write beside observations (no TorchRL transform declares them).
 TASK_FLAG_KEYS = ("success",)
@@ -52,6 +52,15 @@ def non_observation_keys(source: EnvBase | Composite) -> set:
             keys.update(_declared_keys(transform))
         env = env.base_env
     return keys
+
+
+def pictures_of(env: EnvBase) -> str | None:
+    """How the env draws its picture observations (its base env's ``pictures``, e.g. ``"point_mass arena, glow
+    0.6"``), or None for an env that declares nothing. Demonstrations record it and are refused by an env that draws
+    otherwise, so that frames drawn before a change of the picture never mix with frames drawn after it."""
+    while isinstance(env, TransformedEnv):
+        env = env.base_env
+    return getattr(env, "pictures", None)
 
 
 def observation_keys_of(source: EnvBase | Composite, keys: Sequence[str] | None = None) -> list[str]:

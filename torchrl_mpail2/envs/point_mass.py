@@ -168,6 +168,8 @@ class PointMassEnv(EnvBase):
             global torch RNG so that :func:`torch.manual_seed` controls it.
         horizon (int): episode length (truncation). Defaults to 50.
         obs (str): observation mode, ``"state"`` (default) or ``"pixels"``.
+        glow (float): std of the glow around the point in the pictures (:func:`draw_arena`). Defaults to
+            :data:`GLOW_SIGMA`.
 
     Raises:
         ValueError: for another ``obs`` (the message names the valid modes) or ``horizon < 1``.
@@ -191,8 +193,12 @@ class PointMassEnv(EnvBase):
         seed: int | None = None,
         horizon: int = 50,
         obs: str = "state",
+        glow: float = GLOW_SIGMA,
     ) -> None:
         super().__init__(device=device, batch_size=torch.Size(batch_size))
+        if glow < 0:
+            raise ValueError(f"PointMassEnv: glow must be >= 0 (0 draws none), got {glow}")
+        self.glow = float(glow)
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}.")
         if obs not in obs_modes_of(POINT_MASS):
@@ -209,11 +215,17 @@ class PointMassEnv(EnvBase):
             seed = int(torch.randint(0, 2**62, ()).item())
         self.set_seed(seed)
 
+    @property
+    def pictures(self) -> str | None:
+        """How the pixel observation is drawn (recorded by demonstrations, :func:`~torchrl_mpail2.envs.keys.pictures_of`);
+        None from state."""
+        return f"point_mass arena, glow {self.glow}" if self.obs_mode == "pixels" else None
+
     def render(self, size: int = 128) -> np.ndarray:
         """An RGB frame ``[size, size, 3]`` uint8 of the arena (batch size ``[]`` only): :func:`draw_arena`."""
         if self.batch_size:
             raise ValueError(f"PointMassEnv.render draws one point mass; this env has batch size {list(self.batch_size)}")
-        return draw_arena(self._position, size).permute(1, 2, 0).cpu().numpy()
+        return draw_arena(self._position, size, self.glow).permute(1, 2, 0).cpu().numpy()
 
     def _make_specs(self) -> None:
         batch = self.batch_size
@@ -258,7 +270,7 @@ class PointMassEnv(EnvBase):
     def _observation(self) -> TensorDict:
         distance = self._position.norm(dim=-1, keepdim=True)
         if self.obs_mode == "pixels":
-            seen = {IMAGE_KEY: draw_arena(self._position)}
+            seen = {IMAGE_KEY: draw_arena(self._position, glow=self.glow)}
         else:
             seen = {"observation": torch.cat([self._position, self._velocity], dim=-1)}
         return TensorDict(

@@ -47,8 +47,8 @@ def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) 
     seed = t.seed + DEMO_SEED_OFFSET
     demo_env = env_fn(seed=seed)
     # a scripted expert's own randomness (human-like styles, noise) is seeded like the demo episodes
-    options = {"seed": seed, **t.expert_kwargs} if t.expert_kwargs else {}
-    expert = get_expert(t.env, demo_env, **options)
+    expert_options = {"seed": seed, **t.expert_kwargs} if t.expert_kwargs else {}
+    expert = get_expert(t.env, demo_env, **expert_options)
     log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
     demos = record_demos(demo_env, expert, t.num_demos, seed=seed, progress=t.progress,
                          steps_after_success=t.demo_steps_after_success,
