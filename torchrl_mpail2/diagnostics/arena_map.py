@@ -7,7 +7,7 @@ An agent that learned the task rates the goal (the origin) highest and points it
 side; one whose latent geometry does not follow the positions (from pixels, pictures of far-apart positions all
 differ about equally) can rate the goal's surroundings below the arena's edges and drive there.
 
-    python -m torchrl_mpail2.diagnostics arena_map CKPT [--grid 13] [--out FILE.json] [--plot FILE.png]
+    python -m torchrl_mpail2.diagnostics arena_map CKPT [--grid 13] [--out FILE.json] [--plot FILE.png] [--glow S]
 """
 from __future__ import annotations
 
@@ -22,9 +22,10 @@ __all__ = ["arena_map"]
 
 
 @torch.no_grad()
-def arena_map(agent, grid: int = 13, extent: float = 1.4) -> dict:
+def arena_map(agent, grid: int = 13, extent: float = 1.4, glow: float | None = None) -> dict:
     """The maps of the module docstring on a ``grid`` x ``grid`` lattice over ``[-extent, extent]^2`` (rows from
-    the top: y falls, x rises), each ``[grid, grid]`` as nested lists, with ``first_action`` ``[grid, grid, 2]``;
+    the top: y falls, x rises; ``glow``: the pictures' glow, by default the one the agent's run drew with, from its
+    ``train.env_kwargs``, else :data:`~torchrl_mpail2.envs.point_mass.GLOW_SIGMA`), each ``[grid, grid]`` as nested lists, with ``first_action`` ``[grid, grid, 2]``;
     and two summaries: ``value_near_goal_minus_edge`` (the mean value within 0.6 of the goal minus that beyond 1.0
     on either axis: positive where the value leads to the goal) and ``actions_towards_goal`` (the share of positions
     more than 0.2 from the goal whose first action has a component towards it).
@@ -33,14 +34,17 @@ def arena_map(agent, grid: int = 13, extent: float = 1.4) -> dict:
         ValueError: the agent does not observe the point mass (neither ``"observation"`` of width 4 nor
             ``"external_image"``).
     """
-    from torchrl_mpail2.envs.point_mass import IMAGE_KEY, OBSERVATION_DIM, draw_arena
+    from torchrl_mpail2.envs.point_mass import GLOW_SIGMA, IMAGE_KEY, OBSERVATION_DIM, draw_arena
 
     m = agent.modules
     shapes = m.observation_shapes
     xs = torch.linspace(-extent, extent, grid)
     position = torch.stack(torch.meshgrid(xs, xs.flip(0), indexing="xy"), -1).reshape(-1, 2)
     if list(shapes) == [IMAGE_KEY]:
-        observation = {IMAGE_KEY: draw_arena(position)}
+        if glow is None:
+            run = (getattr(agent, "run_config", None) or {}).get("train", {})
+            glow = (run.get("env_kwargs") or {}).get("glow", GLOW_SIGMA)
+        observation = {IMAGE_KEY: draw_arena(position, glow=glow)}
     elif list(shapes) == ["observation"] and tuple(shapes["observation"]) == (OBSERVATION_DIM,):
         observation = {"observation": torch.cat([position, torch.zeros_like(position)], -1)}
     else:
@@ -97,11 +101,14 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--grid", type=int, default=13, help="positions per side")
     p.add_argument("--out", type=Path, help="write the maps to this JSON file")
     p.add_argument("--plot", type=Path, help="draw the maps to this PNG file")
+    p.add_argument("--glow", type=float, default=None,
+                   help="draw the pictures with this glow (default: the run's; 0 for agents trained on the pictures "
+                        "before the glow, commit e3c3189 and earlier)")
     args = p.parse_args(argv)
     if args.grid < 2:
         p.error("--grid must be at least 2")
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
-    result = {"checkpoint": str(args.checkpoint), **arena_map(agent, args.grid)}
+    result = {"checkpoint": str(args.checkpoint), **arena_map(agent, args.grid, glow=args.glow)}
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1))
