@@ -208,7 +208,7 @@ class LatentMPPIPlanner(MPCPlannerBase):
 
     def _return_parts(self, latents: Tensor, actions: Tensor, heads: Tensor, r: Tensor | None = None
                       ) -> tuple[Tensor, Tensor]:
-        """Algorithm 2's return (:func:`~torchrl_mpail2.functional.n_step_return`) of the latent path ``[K + 1, N, Z]``
+        r"""Algorithm 2's return (:func:`~torchrl_mpail2.functional.n_step_return`) of the latent path ``[K + 1, N, Z]``
         reached by ``actions [N, H, A]`` (``r [K, N]``: its rewards, when already walked): ``K`` rewards, then Q (the
         mean of ``heads``) at :math:`\hat z_K` with the plan's action ``K`` or, where ``K = H``, the policy mean's
         first action there. The losses' return of the same path at lambda 1 (tests/test_planner.py)."""
