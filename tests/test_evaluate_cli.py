@@ -61,3 +61,13 @@ def test_a_damaged_checkpoint_or_a_used_folder_is_refused_by_name(run, tmp_path,
     assert stop.value.code == 2 and STATE_FILE in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([str(out), "--episodes", "0"])
+
+
+@pytest.mark.parametrize("name", ["point_mass", "point_mass_pixels"])
+def test_each_shipped_agent_loads_verified_and_reaches_the_goal(name):
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "shipped" / name
+    assert sorted(p.name for p in folder.iterdir()) == sorted([MANIFEST_FILE, STATE_FILE])
+    score = evaluate_checkpoint(folder, episodes=2)  # loading checks the manifest's digests
+    assert score["success_rate_any_step"] == 1.0, score
