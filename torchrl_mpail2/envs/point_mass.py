@@ -157,8 +157,9 @@ class PointMassEnv(EnvBase):
 
     The picture shows where the point is, not how fast it moves: the velocity is the difference of two
     pictures (anti-aliasing makes even a sub-pixel step visible), which the learned reward reads from its
-    transition ``(z, z')``; no velocity vector is observed beside it. (MPAIL2 does not learn the task from
-    pictures yet, for another reason: see the preset ``point_mass_pixels``.)
+    transition ``(z, z')``; no velocity vector is observed beside it. The glow around the point
+    (:data:`GLOW_SIGMA`) is what lets MPAIL2 learn the task from the pictures: see the preset
+    ``point_mass_pixels``.
 
     Args:
         batch_size (sequence of int): number of independent point masses, e.g. ``()`` or ``(4,)``.
