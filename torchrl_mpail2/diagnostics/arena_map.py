@@ -18,10 +18,11 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
+from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, staying_reward_and_value
+
 __all__ = ["arena_map"]
 
 
-@torch.no_grad()
 def arena_map(agent, grid: int = 13, extent: float = 1.4, glow: float | None = None) -> dict:
     """The maps of the module docstring on a ``grid`` x ``grid`` lattice over ``[-extent, extent]^2`` (rows from
     the top: y falls, x rises; ``glow``: the pictures' glow, by default the one the agent's run drew with, from its
@@ -50,10 +51,8 @@ def arena_map(agent, grid: int = 13, extent: float = 1.4, glow: float | None = N
     else:
         raise ValueError(f"arena_map reads point-mass agents (observation keys ['observation'] of width "
                          f"{OBSERVATION_DIM} or [{IMAGE_KEY!r}]); this agent observes {dict(shapes)}")
-    z = m.encode(TensorDict(observation, [position.shape[0]]))
-    reward = m.rewards(torch.stack([z, z])).squeeze(0)
-    action = m.pi(z, deterministic=True)[0][:, 0]
-    value = m.q(z, action).mean(0)
+    read = staying_reward_and_value(m, TensorDict(observation, [position.shape[0]]))
+    z, reward, action, value = read["z"], read["reward"], read["action"], read["value"]
 
     def square(t: torch.Tensor) -> list:
         return t.reshape(grid, grid, *t.shape[1:]).tolist()
@@ -67,29 +66,18 @@ def arena_map(agent, grid: int = 13, extent: float = 1.4, glow: float | None = N
 
 
 def draw_arena_map(result: dict, path: Path, title: str = "") -> Path:
-    """The reward and value maps side by side, the policy's first actions as arrows over the value."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """The reward and value maps side by side, the goal marked, the policy's first actions as arrows over the value."""
     e = result["extent"]
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
-    for ax, key, label in zip(axes, ("reward_of_staying", "value"), ("reward of staying r(z, z)", "Q(z, pi(z))")):
-        im = ax.imshow(torch.tensor(result[key]), extent=(-e, e, -e, e), cmap="viridis")
-        fig.colorbar(im, ax=ax, shrink=0.8)
-        ax.plot(0, 0, "r+", markersize=10)
-        ax.set_title(label, fontsize=9)
-    xs = torch.linspace(-e, e, result["grid"])
-    gx, gy = torch.meshgrid(xs, xs.flip(0), indexing="xy")
-    action = torch.tensor(result["first_action"])
-    axes[1].quiver(gx, gy, action[..., 0], action[..., 1], color="white", scale=25)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+
+    def decorate(axes) -> None:
+        for ax in axes:
+            ax.plot(0, 0, "r+", markersize=10)
+        xs = torch.linspace(-e, e, result["grid"])
+        gx, gy = torch.meshgrid(xs, xs.flip(0), indexing="xy")
+        action = torch.tensor(result["first_action"])
+        axes[1].quiver(gx, gy, action[..., 0], action[..., 1], color="white", scale=25)
+
+    return draw_reward_value_maps(result, path, (-e, e, -e, e), title, decorate=decorate)
 
 
 def main(argv: list[str] | None = None) -> dict:

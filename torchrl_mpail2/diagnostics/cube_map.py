@@ -17,13 +17,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, staying_reward_and_value
+
 __all__ = ["cube_map"]
 
 #: Half widths (m) of the grid around the spawn centre: x across the table, y along the push (beyond the line).
 HALF_X, REACH_Y = 0.08, 0.20
 
 
-@torch.no_grad()
 def cube_map(agent, env, grid: int = 9) -> dict:
     """The maps of the module docstring over ``grid`` x ``grid`` cube positions (rows: the push direction, from the
     spawn side to beyond the line; columns: x), each as nested lists, with the positions, the line and the
@@ -49,24 +50,17 @@ def cube_map(agent, env, grid: int = 9) -> dict:
     along = np.linspace(-0.04, REACH_Y, grid)  # metres travelled from the spawn centre in the push direction
     xs = cube[0] + np.linspace(-HALF_X, HALF_X, grid)
     ys = float(sim_env.spawn_center_y) + sign * along
-    rewards, values, positions = [], [], []
-    qpos_start = np.arange(address[0], address[1])
-    for y in ys:
-        row_r, row_q, row_p = [], [], []
-        for x in xs:
-            state = start.copy()
-            qpos = state[1:1 + sim.model.nq]  # flattened: time, qpos, qvel, ...
-            qpos[qpos_start[:3]] = (x, y, cube[2])
-            td = base.observe_state(state)
-            obs = td.select(*agent.modules.observation_shapes).unsqueeze(0)
-            z = agent.modules.encode(obs)
-            action = agent.modules.pi(z, deterministic=True)[0][:, 0]
-            row_r.append(float(agent.modules.rewards(torch.stack([z, z]))[0, 0]))
-            row_q.append(float(agent.modules.q(z, action).mean(0)[0]))
-            row_p.append([float(x), float(y)])
-        rewards.append(row_r), values.append(row_q), positions.append(row_p)
+    positions = [[[float(x), float(y)] for x in xs] for y in ys]
+    cube_qpos = np.arange(*address)[:3]
+    observed = []
+    for x, y in (p for row in positions for p in row):
+        state = start.copy()
+        state[1 + cube_qpos] = (x, y, cube[2])  # flattened: time, qpos, qvel
+        observed.append(base.observe_state(state).select(*agent.modules.observation_shapes))
     sim.set_state_from_flattened(start)
     sim.forward()
+    read = staying_reward_and_value(agent.modules, torch.stack(observed))  # one encode for the whole grid
+    rewards, values = (read[k].reshape(grid, grid).tolist() for k in ("reward", "value"))
     r = np.array(rewards)
     past = (ys - line_y) * sign > 0
     return {"grid": grid, "line_y": line_y, "push_sign": sign, "positions": positions, "reward_of_staying": rewards,
@@ -75,29 +69,16 @@ def cube_map(agent, env, grid: int = 9) -> dict:
 
 
 def draw_cube_map(result: dict, path: Path, title: str = "") -> Path:
-    """The reward and value over cube positions, the line dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """The reward and value over cube positions (the first row, the spawn side, at the top), the line dashed."""
     p = np.array(result["positions"])
-    extent = (p[..., 0].min(), p[..., 0].max(), p[..., 1].min(), p[..., 1].max())
-    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
-    for ax, key, label in zip(axes, ("reward_of_staying", "value"), ("reward of staying r(z, z)", "Q(z, pi(z))")):
-        grid = np.array(result[key])
-        im = ax.imshow(grid if p[0, 0, 1] > p[-1, 0, 1] else grid[::-1], extent=extent, cmap="viridis", aspect="auto")
-        fig.colorbar(im, ax=ax, shrink=0.8)
-        ax.axhline(result["line_y"], color="red", linestyle="--", linewidth=1)
-        ax.set_xlabel("cube x (m)")
-        ax.set_ylabel("cube y (m); red: the line")
-        ax.set_title(label, fontsize=9)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    extent = (p[..., 0].min(), p[..., 0].max(), p[-1, 0, 1], p[0, 0, 1])
+
+    def decorate(axes) -> None:
+        for ax in axes:
+            ax.axhline(result["line_y"], color="red", linestyle="--", linewidth=1)
+
+    return draw_reward_value_maps(result, path, extent, title, labels=("cube x (m)", "cube y (m); red: the line"),
+                                  decorate=decorate)
 
 
 def main(argv: list[str] | None = None) -> dict:
