@@ -106,10 +106,10 @@ def draw_arena(position: torch.Tensor, size: int = IMAGE_SIZE, glow: float = GLO
     px, py = position[..., 0, None, None].float(), position[..., 1, None, None].float()
     distance = torch.hypot(x - px, y - py)
     inside = _coverage(distance, POINT_RADIUS_PIXELS * pixel, pixel)
-    if glow > 0:
+    if glow > 0:  # the green channel moves towards GLOW_GREEN by the shade; red and blue stay
         shade = GLOW_PEAK * torch.exp(-0.5 * (distance / glow) ** 2)
-        red, green, blue = empty.expand(*shade.shape[:-2], 3, *shade.shape[-2:]).unbind(-3)
-        empty = torch.stack([red, torch.lerp(green, torch.full_like(green, GLOW_GREEN), shade), blue], -3)
+        green_only = torch.tensor([0.0, 1.0, 0.0], device=position.device).view(3, 1, 1)
+        empty = empty + green_only * (shade * (GLOW_GREEN - empty[1])).unsqueeze(-3)
     point = torch.tensor(POINT_RGB, dtype=torch.float32, device=position.device).view(3, 1, 1)
     return torch.lerp(empty, point, inside.unsqueeze(-3)).round().to(torch.uint8)
 
