@@ -1,8 +1,7 @@
 """The agent object: built from switches, loaded from a checkpoint on its own, handed to the trainer."""
-import importlib.util
+import importlib
 import json
 import shutil
-from pathlib import Path
 
 import pytest
 import torch
@@ -17,7 +16,6 @@ from torchrl_mpail2.experts import PointMassExpert
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY_MODEL = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
 TINY_PLANNER = PlannerConfig(num_candidates=16, num_elites=4, iterations=2)
 
@@ -154,12 +152,9 @@ def test_the_trainer_trains_the_agent_it_is_given(tmp_path):
 
 
 def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(trained_run, monkeypatch):
-    """``benchmarks/evaluate_checkpoints.py`` loads agents alone and replays the fixed evaluation set."""
+    """``benchmarks/learning/evaluate_checkpoints.py`` loads agents alone and replays the fixed evaluation set."""
     trainer, run_dir = trained_run
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("evaluate_checkpoints", ROOT / "benchmarks" / "evaluate_checkpoints.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = importlib.import_module("benchmarks.learning.evaluate_checkpoints")
     result = bench.evaluate_run(run_dir, reuse_run_evals=False)  # as many episodes as the run's own
     logged = [json.loads(line) for line in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert [row["episode"] for row in result["checkpoints"]] == [3]
@@ -179,10 +174,7 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
 def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scores_the_best_held_out(
         trained_run, monkeypatch, tmp_path):
     trainer, run_dir = trained_run
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("evaluate_checkpoints", ROOT / "benchmarks" / "evaluate_checkpoints.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = importlib.import_module("benchmarks.learning.evaluate_checkpoints")
     out = tmp_path / "checkpoint_evals.json"
     result = bench.evaluate_run(run_dir, held_out=2, out=out)
     logged = json.loads((run_dir / "eval.jsonl").read_text().splitlines()[-1])
@@ -214,7 +206,7 @@ def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scor
 
 
 def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(monkeypatch, tmp_path):
-    """``benchmarks/device_smoke.py`` is the GPU check; its CPU path keeps it from rotting between GPU sessions."""
+    """``benchmarks/speed/device_smoke.py`` is the GPU check; its CPU path keeps it from rotting between GPU sessions."""
     from torchrl_mpail2.config import ConfigError
     from torchrl_mpail2.trainers import MPAIL2Trainer
 
@@ -225,10 +217,7 @@ def test_train_device_is_checked_and_the_device_smoke_script_runs_on_the_cpu(mon
         with pytest.raises(ConfigError, match="sees no CUDA device"):
             MPAIL2Trainer(gpu_run, run_dir=tmp_path / "run")  # but trains only where there is one
         assert not (tmp_path / "run").exists()
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location("device_smoke", ROOT / "benchmarks" / "device_smoke.py")
-    smoke = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(smoke)
+    smoke = importlib.import_module("benchmarks.speed.device_smoke")
     cpu = torch.device("cpu")
     same = smoke.agreement(cpu, "state", PlannerConfig(num_candidates=32, num_elites=4, iterations=2), batch=8)
     assert same["first_action_distance"] == 0.0 and same["losses_cpu"] == same["losses_device"]

@@ -1,20 +1,15 @@
 """Benchmark scripts that read finished runs: the point-mass check of a speed setting, the whole-loop table."""
-import importlib.util
+import importlib
 import json
 import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture()
 def bench():
-    spec = importlib.util.spec_from_file_location("setting_learning", ROOT / "benchmarks" / "setting_learning.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return importlib.import_module("benchmarks.learning.setting_learning")
 
 
 def _fake_run(folder: Path, successes, wall, act):
@@ -54,9 +49,7 @@ def test_missing_run_file_is_named(bench, tmp_path, monkeypatch):
 
 
 def test_loop_speed_tabulates_a_finished_run(tmp_path):
-    spec = importlib.util.spec_from_file_location("loop_speed", ROOT / "benchmarks" / "loop_speed.py")
-    loop_speed = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(loop_speed)
+    loop_speed = importlib.import_module("benchmarks.speed.loop_speed")
     run = tmp_path / "lift_pair" / "seed0"
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"train": {"threads": 1}}))

@@ -45,3 +45,28 @@ def test_results_pages_hold_no_machine_paths():
     found = [f"{f.relative_to(ROOT)}:{i}" for f in sorted((ROOT / "docs").rglob("*")) if f.suffix in (".md", ".json")
              for i, line in enumerate(f.read_text().splitlines(), 1) if machine.search(line)]
     assert not found, f"absolute machine paths in {found[:20]}"
+
+
+#: ``python -m benchmarks.speed.NAME`` / ``python -m benchmarks.learning.NAME`` and the diagnostics' commands
+BENCHMARK = re.compile(r"python3? -m benchmarks\.([a-z]\w*)\.([a-z]\w*)")  # NAME: a placeholder
+DIAGNOSTIC = re.compile(r"python3? -m torchrl_mpail2\.diagnostics ([a-z]\w*)")
+OLD_SCRIPT = re.compile(r"python3? benchmarks/\w+\.py")
+
+
+def test_documented_benchmark_and_diagnostic_commands_exist():
+    """A command the docs give runs a module that exists (the CHANGELOG's older entries name the paths of their day)."""
+    from torchrl_mpail2.diagnostics.__main__ import COMMANDS
+
+    pages = [p for p in PAGES if p.name != "CHANGELOG.md"] + sorted((ROOT / "benchmarks").rglob("*.py")) + sorted(
+        (ROOT / "torchrl_mpail2").rglob("*.py"))
+    missing, old = [], []
+    for page in pages:
+        text = page.read_text()
+        missing += [f"{page.relative_to(ROOT)}: benchmarks.{group}.{name}" for group, name in BENCHMARK.findall(text)
+                    if not (ROOT / "benchmarks" / group / f"{name}.py").is_file()]
+        missing += [f"{page.relative_to(ROOT)}: diagnostics {name}" for name in DIAGNOSTIC.findall(text)
+                    if name not in COMMANDS]
+        old += [f"{page.relative_to(ROOT)}: {m}" for m in OLD_SCRIPT.findall(text)]
+    old = [o for o in old if "diary/" not in o]  # the frozen diary names scripts removed at a commit it names
+    assert not missing, f"documented commands of modules that do not exist: {missing}"
+    assert not old, f"scripts run by path (use python -m benchmarks.speed.NAME / benchmarks.learning.NAME): {old}"

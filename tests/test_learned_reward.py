@@ -101,13 +101,9 @@ def test_from_checkpoint_scores_with_the_runs_trained_reward(tmp_path):
 @pytest.mark.slow
 def test_torchrl_sac_learns_the_point_mass_from_the_learned_reward_alone(tmp_path):
     """MPAIL2 on the point mass, then TorchRL's SACLoss on its learned reward only (no task reward)."""
-    import importlib.util
-    from pathlib import Path
+    import importlib
 
-    root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("learned_reward_sac", root / "benchmarks" / "learned_reward_sac.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = importlib.import_module("benchmarks.learning.learned_reward_sac")
     checkpoint = bench.train_mpail2(tmp_path / "mpail2", episodes=40)
     result = bench.run(checkpoint, seeds=[0], frames=5000, warmup=1000, episodes=20)
     assert result["sac_success_any_step_mean"] >= 0.6, result

@@ -1,5 +1,5 @@
 """The multi-seed learning benchmark aggregates seeds' fixed-episode evaluations correctly."""
-import importlib.util
+import importlib
 import json
 from pathlib import Path
 
@@ -10,9 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture()
 def bench(tmp_path, monkeypatch):
-    spec = importlib.util.spec_from_file_location("learning_seeds", ROOT / "benchmarks" / "learning_seeds.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = importlib.import_module("benchmarks.learning.learning_seeds")
     monkeypatch.setattr(module, "RESULTS", tmp_path / "results")
     return module
 
@@ -187,7 +185,7 @@ def test_summarize_can_leave_out_a_seed_that_has_not_evaluated_yet(bench, tmp_pa
 
 
 def _checkpoint_evals(run, rows, held_out=None, episodes=20, acting="deterministic"):
-    """A ``checkpoint_evals.json`` as ``benchmarks/evaluate_checkpoints.py`` writes it: ``rows`` of (episode, any step)."""
+    """A ``checkpoint_evals.json`` as ``benchmarks/learning/evaluate_checkpoints.py`` writes it: ``rows`` of (episode, any step)."""
     checkpoints = [{"episode": e, "checkpoint": f"episode_{e:06d}", "success_rate_any_step": a, "success_rate": a}
                    for e, a in rows]
     best = max(checkpoints, key=lambda r: r["success_rate_any_step"])
@@ -263,9 +261,6 @@ def test_the_held_out_headline_has_a_bootstrap_interval_and_the_iqm_from_three_s
 
 
 def test_bootstrap_interval_and_iqm_by_hand():
-    import sys
-
-    sys.path.insert(0, str(ROOT / "benchmarks"))
     from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm
 
     assert bootstrap_ci([[1.0] * 20]) == (1.0, 1.0)  # nothing varies

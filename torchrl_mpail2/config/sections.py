@@ -176,7 +176,7 @@ class PlannerConfig:
     shape and precision; training and evaluation calls share the graphs, and so do planners built later in the same
     process on networks of the same sizes. Where compiling fails (inductor needs a working C++ compiler on a CPU), a
     warning is logged and the planner scores eagerly. Off by default: compiling costs 25-55 s on a CPU and changes
-    the last bits of the returns (``benchmarks/compile_speed.py``); on Lift, seeds 0 and 1, the compiled runs reached
+    the last bits of the returns (``benchmarks/speed/compile_speed.py``); on Lift, seeds 0 and 1, the compiled runs reached
     0.60 at 300 episodes against 0.925 eager, with no fault found (docs/results/speed/speed_notes.md)."""
     compile_mode: str = "default"
     """``torch.compile`` mode with ``compile``: ``default``, ``reduce-overhead`` (the scoring replayed as CUDA graphs

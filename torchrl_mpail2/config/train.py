@@ -95,7 +95,7 @@ class TrainConfig:
     eval_envs: int = 1
     """Evaluation episodes played at once, in lockstep, the planner acting on all of them in one batched call
     (``trainers.evaluation.evaluate_episodes_lockstep``): with 8, an evaluation took 2.7 times less time on one H200
-    at the paper configuration and 1.4 times less on 2 CPU cores with ``lift_state`` (``benchmarks/eval_speed.py``).
+    at the paper configuration and 1.4 times less on 2 CPU cores with ``lift_state`` (``benchmarks/speed/eval_speed.py``).
     The initial states are the same; the planner's noise is drawn per batch, so scores compare between runs with
     the same ``eval_envs`` (1, the default, is the sequential evaluation every recorded result used)."""
     eval_acting: str = "deterministic"

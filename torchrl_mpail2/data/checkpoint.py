@@ -199,6 +199,13 @@ def checkpoint_episodes(path: Path) -> int:
     return int(read_checkpoint(path)["counters"]["episodes"])
 
 
+def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """A run's ``checkpoints/episode_N`` folders (the trainer's ``train.checkpoint_every``), as ``(N, folder)`` by
+    episode; temporary ``.episode_N.tmp`` ones excluded."""
+    return sorted((int(path.name.removeprefix("episode_")), path)
+                  for path in (Path(run_dir) / "checkpoints").glob("episode_*") if path.is_dir())
+
+
 def find_resumable(checkpoints: Path) -> Path | None:
     """The newest complete checkpoint under ``checkpoints`` (``last``, numbered ones, or ones a crash left mid-rename).
 

@@ -1,15 +1,19 @@
-"""``python -m torchrl_mpail2.diagnostics {arena_map,cube_map,plan_pictures,lift_phases,held_plans,critic_profile,latent_content} CKPT
-[...]``: the diagnostics' command line."""
+"""``python -m torchrl_mpail2.diagnostics COMMAND ...``: the diagnostics' command line (``COMMAND --help`` for each).
+
+Of a checkpoint: ``arena_map``, ``cube_map``, ``critic_profile``, ``latent_content``, ``plan_pictures``,
+``held_plans``, ``held_value_probe``, ``actor_vs_planner``; of a run's checkpoints: ``lift_phases``,
+``grasp_preference``; of the reward network alone: ``critic_generalisation``."""
 import sys
 
-from torchrl_mpail2.diagnostics import (arena_map, critic_profile, cube_map, held_plans, latent_content, lift_phases,
+from torchrl_mpail2.diagnostics import (actor_vs_planner, arena_map, critic_generalisation, critic_profile, cube_map,
+                                        grasp_preference, held_plans, held_value_probe, latent_content, lift_phases,
                                         plan_pictures)
 
-COMMANDS = {"arena_map": arena_map.main, "critic_profile": critic_profile.main, "cube_map": cube_map.main,
-            "held_plans": held_plans.main,
-            "latent_content": latent_content.main, "lift_phases": lift_phases.main, "plan_pictures": plan_pictures.main}
+COMMANDS = {module.__name__.rsplit(".", 1)[-1]: module.main
+            for module in (actor_vs_planner, arena_map, critic_generalisation, critic_profile, cube_map,
+                           grasp_preference, held_plans, held_value_probe, latent_content, lift_phases, plan_pictures)}
 
 if __name__ == "__main__":
     if len(sys.argv) < 2 or sys.argv[1] not in COMMANDS:
-        sys.exit(f"usage: python -m torchrl_mpail2.diagnostics {{{','.join(COMMANDS)}}} ... (commands: {sorted(COMMANDS)})")
+        sys.exit(f"usage: python -m torchrl_mpail2.diagnostics {{{','.join(sorted(COMMANDS))}}} ...")
     COMMANDS[sys.argv[1]](sys.argv[2:])

@@ -6,7 +6,7 @@ transforms). It ignores the observation and reads the simulator through
 that state at every step (no memory), so the experts need no reset, recover from a failed grasp or a cube that
 slipped sideways, and work inside any rollout or collector that steps the same env.
 
-Measured success over 50 seeded episodes: ``benchmarks/scripted_experts.py`` (``docs/results/diagnostics/scripted_experts.json``).
+Measured success over 50 seeded episodes: ``benchmarks/learning/scripted_experts.py`` (``docs/results/diagnostics/scripted_experts.json``).
 """
 
 from __future__ import annotations

@@ -51,7 +51,7 @@ class ImageCoder(nn.Module):
     :meth:`EncoderNet.set_normalization` set them from demonstrations), clipped at ``clip``. The images go to
     the convolutions channels-last, oneDNN's fast layout (one thread of a 2-core AMD EPYC: a stop-gradient encode 2.1
     times faster than all-NCHW; weights held channels-last as well gained nothing more,
-    ``benchmarks/cnn_layout_speed.py``); the result is the channels-first computation's up to float rounding
+    ``benchmarks/speed/cnn_layout_speed.py``); the result is the channels-first computation's up to float rounding
     (``tests/test_modules.py``).
 
     ``init="kaiming"`` (:data:`CNN_INITS`) keeps the scale of the pictures' differences through the layers: with

@@ -1,8 +1,8 @@
 """One planning call, one update and two point-mass training episodes on a device, checked against the CPU and
 timed at the paper configuration.
 
-    python benchmarks/device_smoke.py --device cuda            # on a machine with a GPU (a few minutes)
-    python benchmarks/device_smoke.py --device cpu --quick     # the same code path on the CPU (smoke)
+    python -m benchmarks.speed.device_smoke --device cuda            # on a machine with a GPU (a few minutes)
+    python -m benchmarks.speed.device_smoke --device cpu --quick     # the same code path on the CPU (smoke)
 
 1. Agreement: the same weights on the CPU and on ``--device`` plan from the same observations with the same seeded
    noise (first-action distance reported) and take one update on the same batch (losses compared).
@@ -21,7 +21,6 @@ import contextlib
 import copy
 import json
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -29,14 +28,13 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SETTINGS, random_observations, replay_batch  # noqa: E402
+from benchmarks.records import ROOT
+from benchmarks.speed.common import SETTINGS, random_observations, replay_batch
+from torchrl_mpail2 import LatentMPPIPlanner, MPAIL2Loss, MPAIL2Updater, PlannerConfig
+from torchrl_mpail2.config import COMPILE_MODES, LossConfig
+from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 
-from torchrl_mpail2 import LatentMPPIPlanner, MPAIL2Loss, MPAIL2Updater, PlannerConfig  # noqa: E402
-from torchrl_mpail2.config import COMPILE_MODES, LossConfig  # noqa: E402
-from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset  # noqa: E402
-
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "speed"
+RESULTS = ROOT / "docs" / "results" / "speed"
 #: planner variants whose kernels are profiled on a GPU
 PROFILED = ("fp32", "bf16", "fp32_compiled_reduce_overhead", "bf16_compiled_reduce_overhead")
 

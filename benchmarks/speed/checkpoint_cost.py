@@ -1,6 +1,6 @@
 """What one ``checkpoints/last`` costs when it carries the replay: seconds and bytes on disk.
 
-    python benchmarks/checkpoint_cost.py [--capacity 50000] [--filled 30000] [--obs pixels|state]
+    python -m benchmarks.speed.checkpoint_cost [--capacity 50000] [--filled 30000] [--obs pixels|state]
 
 Fills a memory-mapped replay like the trainer's (``LazyMemmapStorage``, preallocated to the run's capacity) with
 ``--filled`` random transitions shaped like robosuite Lift's (``pixels``: one 64 x 64 RGB camera and the 26
@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,11 +20,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 
+from benchmarks.records import ROOT, write_record
 from torchrl_mpail2.data.checkpoint import write_checkpoint
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _results import write_record  # noqa: E402
 
 CHUNK = 1000
 

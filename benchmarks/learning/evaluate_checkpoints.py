@@ -2,7 +2,7 @@
 checkpoints are selected by evaluating all automatically saved checkpoints (every 10 episodes) beyond where the
 learner generally begins to exhibit successes").
 
-    python benchmarks/evaluate_checkpoints.py RUN_DIR [--episodes N] [--from-episode 100] [--held-out 50]
+    python -m benchmarks.learning.evaluate_checkpoints RUN_DIR [--episodes N] [--from-episode 100] [--held-out 50]
         [--name lift_state_tpw1] [--acting random]
 
 Loads each numbered checkpoint's agent on its own (:meth:`MPAIL2Agent.from_checkpoint`: no trainer, no replay;
@@ -37,18 +37,14 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from benchmarks.records import ROOT
 from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.data.checkpoint import numbered_checkpoints
 from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, evaluate_episodes, evaluation_env,
                                                 evaluation_seeds, run_eval_seed, summarize_outcomes)
 from torchrl_mpail2.trainers.plots import EVAL_FILE, read_jsonl
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diary"
-
-
-def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
-    """The trainer's ``checkpoints/episode_N`` folders, by episode (temporary ``.episode_N.tmp`` ones excluded)."""
-    return sorted((int(path.name.removeprefix("episode_")), path)
-                  for path in (run_dir / "checkpoints").glob("episode_*") if path.is_dir())
+RESULTS = ROOT / "docs" / "results" / "diary"
 
 
 def run_env(run_dir: Path):

@@ -1,6 +1,6 @@
 """Milliseconds per robosuite env step with cameras against the state step, with each renderer.
 
-    python benchmarks/camera_step.py [--task Push] [--steps 50] [--rounds 3] [--name camera_step]
+    python -m benchmarks.speed.camera_step [--task Push] [--steps 50] [--rounds 3] [--name camera_step]
 
 Every (observation mode, renderer) pair is one env in one process (one torch thread), built and warmed up first;
 the pairs then take turns, ``--steps`` random-action steps each per round (an episode reset whenever the horizon
@@ -12,13 +12,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _results import write_record  # noqa: E402
+from benchmarks.records import ROOT, write_record
+
 RESULTS = ROOT / "docs" / "results" / "speed"
 PAIRS = (("state", "light"), ("pixels", "light"), ("external_pixels", "light"), ("pixels", "full"),
          ("external_pixels", "full"))

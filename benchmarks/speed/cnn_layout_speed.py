@@ -1,6 +1,6 @@
 """Milliseconds of the image coder (Fig. 14's CNN) by memory layout and chunking, in one process, variants in turn.
 
-    python benchmarks/cnn_layout_speed.py [--frames 1792] [--grad-frames 512] [--rounds 5] [--name cnn_layout_speed]
+    python -m benchmarks.speed.cnn_layout_speed [--frames 1792] [--grad-frames 512] [--rounds 5] [--name cnn_layout_speed]
 
 Variants: ``nchw`` (contiguous weights and input, the whole batch at once), ``input_channels_last`` (the input
 channels-last, the weights contiguous: the package before its image coder held channels-last weights),
@@ -15,13 +15,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _results import write_record  # noqa: E402
+from benchmarks.records import ROOT, write_record
+
 RESULTS = ROOT / "docs" / "results" / "speed"
 CHUNK = 64
 

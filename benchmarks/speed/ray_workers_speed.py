@@ -1,6 +1,6 @@
 """Collection speed with Ray workers: environment steps per second of ``train.collector=ray`` on the point mass.
 
-    python benchmarks/ray_workers_speed.py [--workers 1 2 4] [--batches 3] [--out PATH] [--note TEXT]
+    python -m benchmarks.speed.ray_workers_speed [--workers 1 2 4] [--batches 3] [--out PATH] [--note TEXT]
 
 For each worker count, a :class:`~torchrl_mpail2.trainers.ray_collection.RayEpisodeCollector` of the
 ``point_mass`` preset's agent (untrained networks; the planner acts, as after the warm-up) collects one batch to
@@ -18,23 +18,19 @@ import argparse
 import functools
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _common import machine  # noqa: E402
-from _results import git_commit  # noqa: E402
-
-from torchrl_mpail2.agents import MPAIL2Agent  # noqa: E402
-from torchrl_mpail2.envs import make_env  # noqa: E402
-from torchrl_mpail2.trainers import preset  # noqa: E402
-from torchrl_mpail2.trainers.collection import make_collector  # noqa: E402
-from torchrl_mpail2.trainers.ray_collection import RayEpisodeCollector, ray_init_kwargs, require_ray  # noqa: E402
+from benchmarks.records import ROOT, git_commit
+from benchmarks.speed.common import machine
+from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.envs import make_env
+from torchrl_mpail2.trainers import preset
+from torchrl_mpail2.trainers.collection import make_collector
+from torchrl_mpail2.trainers.ray_collection import RayEpisodeCollector, ray_init_kwargs, require_ray
 
 DEFAULT_OUT = Path(tempfile.gettempdir()) / "torchrl_mpail2_bench" / "ray_workers_speed.json"
 point_mass = functools.partial(make_env, "point_mass")
@@ -60,7 +56,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--note", default="")
     args = parser.parse_args()
-    ray = require_ray("benchmarks/ray_workers_speed.py")
+    ray = require_ray("benchmarks/speed/ray_workers_speed.py")
     torch.set_num_threads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # inherited by the Ray workers
 

@@ -1,11 +1,11 @@
 """Learning over several training seeds, scored on the fixed evaluation episodes.
 
-    python benchmarks/learning_seeds.py NAME --preset lift_state --seeds 0 1 --episodes 300 --budget-min 100 \\
+    python -m benchmarks.learning.learning_seeds NAME --preset lift_state --seeds 0 1 --episodes 300 --budget-min 100 \\
         [section.field=value ...]
-    python benchmarks/learning_seeds.py NAME --summarize           # rewrite the results from the run folders
-    python benchmarks/learning_seeds.py --compare NAME [NAME ...] --out docs/results/learning/compare.png
-    python benchmarks/learning_seeds.py NAME --merge SOURCE [SOURCE ...]  # one result from several results' seeds
-    python benchmarks/learning_seeds.py NAME --preset push_state train.env=robosuite/PushMirrored \\
+    python -m benchmarks.learning.learning_seeds NAME --summarize           # rewrite the results from the run folders
+    python -m benchmarks.learning.learning_seeds --compare NAME [NAME ...] --out docs/results/learning/compare.png
+    python -m benchmarks.learning.learning_seeds NAME --merge SOURCE [SOURCE ...]  # one result from several results' seeds
+    python -m benchmarks.learning.learning_seeds NAME --preset push_state train.env=robosuite/PushMirrored \\
         --init-from runs/learning/push_state/seed{seed}/checkpoints/last --transfer world-model   # transfer
 
 Each seed trains in its own process (``--parallel`` at a time, one torch thread each) under
@@ -14,7 +14,7 @@ with a checkpoint resumes from it, one without starts afresh. Every evaluation p
 ``train.eval_seed + i``, seeded planner noise), and a checkpoint is saved at each, so the maximum over the
 evaluations is a Best (every checkpoint evaluated on the same episodes) and the final one the paper's Last. The
 paper's Best picks among checkpoints saved every 10 episodes: ``--checkpoint-every 10`` saves them (16 MB each on
-Lift), ``benchmarks/evaluate_checkpoints.py RUN --from-episode E --held-out 50`` scores them (and the chosen one on
+Lift), ``benchmarks/learning/evaluate_checkpoints.py RUN --from-episode E --held-out 50`` scores them (and the chosen one on
 50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
 ``best_all_checkpoints_success_any_step`` and ``best_checkpoint_held_out_success_any_step`` beside the evaluations'.
 
@@ -44,11 +44,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _child_env import child_env  # noqa: E402
-from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm  # noqa: E402
-from _results import git_commit  # noqa: E402
+from benchmarks.records import ROOT, child_env, git_commit
+from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm
+
 RESULTS = ROOT / "docs" / "results" / "learning"
 THRESHOLDS = (0.5, 0.8)
 #: Training episodes per point of ``training_curve``.
@@ -99,14 +97,14 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
 
 def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
-    (``benchmarks/evaluate_checkpoints.py --only-evaluated --held-out N``, one thread; a score already in the run's
-    ``checkpoint_evals.json`` is reused)."""
+    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread; a score already
+    in the run's ``checkpoint_evals.json`` is reused)."""
     if not args.held_out:
         return
     for seed, run_dir in seeds:
         if not (run_dir / "summary.json").exists() or not (run_dir / "checkpoints").exists():
             continue
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "evaluate_checkpoints.py"), str(run_dir), "--only-evaluated",
+        cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
                "--held-out", str(args.held_out), "--threads", "1"]
         with open(run_dir.parent / f"seed{seed}.log", "a") as log:
             code = subprocess.run(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log, stderr=subprocess.STDOUT).returncode
@@ -251,7 +249,7 @@ def portable_config(config: dict, runs_root: Path) -> dict:
 
 
 def all_checkpoints(run_dir: Path, train: dict) -> dict | None:
-    """A seed's ``checkpoint_evals.json`` (``benchmarks/evaluate_checkpoints.py``) in brief, when it played the
+    """A seed's ``checkpoint_evals.json`` (``benchmarks/learning/evaluate_checkpoints.py``) in brief, when it played the
     run's own evaluation episodes deterministically: how many checkpoints from which episode, the Best among them
     and its held-out score; None without one (or for another set of episodes)."""
     from torchrl_mpail2.trainers.evaluation import run_eval_seed
@@ -454,7 +452,7 @@ def main() -> None:
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--checkpoint-every", type=int, default=None,
                    help="save a checkpoint every this many episodes (default: at each evaluation); the paper's Best "
-                        "picks among checkpoints every 10 (benchmarks/evaluate_checkpoints.py scores them)")
+                        "picks among checkpoints every 10 (benchmarks/learning/evaluate_checkpoints.py scores them)")
     p.add_argument("--init-from", metavar="CKPT", help="transfer: start each seed from this checkpoint folder, where "
                    "{seed} stands for the seed (e.g. runs/learning/push_state/seed{seed}/checkpoints/last)")
     p.add_argument("--transfer", choices=("all", "world-model"), default="all",

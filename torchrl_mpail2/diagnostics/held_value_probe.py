@@ -1,7 +1,7 @@
 """Is the value low after a lift whatever the action, or only for the policy's action? Q at held Lift states and
 at the states a plan reaches from them in the simulator.
 
-    python benchmarks/held_value_probe.py CKPT [--episodes 8] [--outcome succeeded|failed] [--out F.json]
+    python -m torchrl_mpail2.diagnostics held_value_probe CKPT [--episodes 8] [--outcome succeeded|failed] [--out F.json]
 
 Plays the run's first ``--episodes`` fixed evaluation episodes with the checkpoint (as
 ``python -m torchrl_mpail2.diagnostics held_plans``), keeps those of ``--outcome``, and from every 10th held state
@@ -66,14 +66,14 @@ def probe(path: str, episodes: int, outcome: str) -> dict:
                else {"states": 0} for key, r in rows.items()}}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("checkpoint")
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--outcome", choices=("succeeded", "failed"), default="succeeded")
     parser.add_argument("--out", help="write the result to this JSON file")
     parser.add_argument("--threads", type=int, default=1)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     result = probe(args.checkpoint, args.episodes, args.outcome)
     print(json.dumps(result, indent=1))

@@ -1,7 +1,7 @@
 """Does the WGAN critic learn what makes a demonstration expert-like, or memorise the demonstrations?
 
-    python benchmarks/critic_generalisation.py [--train 10] [--heldout 20] [--agent 20] [--steps 2000]
-        [--gp-coefs 0.1 10] [--out critic_generalisation_gp.json]
+    python -m torchrl_mpail2.diagnostics critic_generalisation [--train 10] [--heldout 20] [--agent 20]
+        [--steps 2000] [--gp-coefs 0.1 10] [--out F.json]
 
 For each demonstration style (the noiseless scripted Lift expert as recorded today; the human-like one:
 per-episode speed, approach path, drift and pauses, recordings ending 10 steps after success), a critic is
@@ -12,7 +12,7 @@ It is then scored on ``--heldout`` unseen expert episodes of the same style. Rep
 critic gap (expert minus agent) on the training demos and on the held-out episodes, the held-out AUC (the chance
 that a held-out expert transition outscores an agent transition; 0.5 is chance), the critic's input-gradient norm
 on the agent and held-out expert pairs (the gradient penalty pulls it towards 1), and the held-out gap in units of
-the agent scores' standard deviation. Writes ``docs/results/diagnostics/<--out>``.
+the agent scores' standard deviation. Prints one line per style and beta; ``--out`` writes the result to a JSON file.
 """
 from __future__ import annotations
 
@@ -30,7 +30,6 @@ from torchrl_mpail2.experts import get_expert
 from torchrl_mpail2.modules import MPAIL2Modules
 from torchrl_mpail2.objectives.reward import AdversarialRewardLoss
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 ENV = "robosuite/Lift"
 STYLES = {"scripted": ({}, None), "human_like": ({"human_like": True}, 10)}
 TRAIN_SEED, HELDOUT_SEED, AGENT_SEED = 1_000_000, 3_000_000, 4_000_000
@@ -110,7 +109,7 @@ def run_style(style: str, agent_demos, args, gp_coef: float = 0.1) -> dict:
             "critic_train_s": time.perf_counter() - start}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--train", type=int, default=10)
     p.add_argument("--heldout", type=int, default=20)
@@ -120,8 +119,8 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--styles", nargs="+", default=list(STYLES), choices=list(STYLES))
     p.add_argument("--gp-coefs", nargs="+", type=float, default=[0.1], help="gradient-penalty coefficients beta")
-    p.add_argument("--out", default="critic_generalisation.json", help="file name under docs/results/diagnostics/")
-    args = p.parse_args()
+    p.add_argument("--out", type=Path, help="write the result to this JSON file")
+    args = p.parse_args(argv)
     if any(b < 0 for b in args.gp_coefs):
         p.error(f"--gp-coefs must be non-negative, got {args.gp_coefs}")
     torch.set_num_threads(args.threads)
@@ -131,8 +130,8 @@ def main() -> None:
               "agent_success": agent_demos.success_rate, "critic_steps": args.steps, "batch": args.batch,
               "critic": "package reward network and loss on frozen initial-encoder latents", "gp_coefs": args.gp_coefs,
               "styles": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / args.out).write_text(json.dumps(result, indent=2))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2) + "\n")
     for r in rows:
         print(f"{r['style']:11s} beta {r['gp_coef']:6g} |grad| {r['grad_norm_agent']:7.2f}  "
               f"train gap {r['train_gap']:8.1f}  held-out gap {r['heldout_gap']:8.1f}  "

@@ -1,6 +1,6 @@
 """The learner's camera frames with the light renderer beside robosuite's full renderer, for the same states.
 
-    python benchmarks/renderer_frames.py [--out docs/figures/renderers.png]
+    python -m benchmarks.speed.renderer_frames [--out docs/figures/renderers.png]
 
 Lift and Push reset from seed 3 with the light renderer; the same simulator state is then rendered by an env with
 robosuite's full renderer (shadows, reflections, skybox, 4x multisampling). One row per task: the external and wrist
@@ -11,7 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.records import ROOT
+
 CAMERAS = ("external_image", "wrist_image")
 
 

@@ -1,7 +1,7 @@
 """Speed of the whole training loop: environment steps per second of a real run, and where its time goes.
 
-    python benchmarks/loop_speed.py [--episodes 8] [--presets lift_state paper_lift_state] [--threads 1 2]
-    python benchmarks/loop_speed.py --presets lift_state --threads 1 --num-envs 1 2 4 --episodes 12 --name num_envs_speed
+    python -m benchmarks.speed.loop_speed [--episodes 8] [--presets lift_state paper_lift_state] [--threads 1 2]
+    python -m benchmarks.speed.loop_speed --presets lift_state --threads 1 --num-envs 1 2 4 --episodes 12 --name num_envs_speed
 
 Each (preset, threads) pair trains a fresh robosuite Lift run (state observations) for ``--episodes`` episodes
 with an evaluation and checkpoints inside the measured window (``train.eval_every`` = ``--episodes``, 5 evaluation
@@ -23,10 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _child_env import child_env  # noqa: E402
-from _results import write_record  # noqa: E402
+from benchmarks.records import ROOT, child_env, write_record
+
 RESULTS = ROOT / "docs" / "results" / "speed"
 STAGES = ("act", "env", "update", "evaluate", "checkpoint", "log")
 

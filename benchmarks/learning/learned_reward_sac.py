@@ -1,6 +1,6 @@
 """TorchRL's own SAC trained on MPAIL2's learned reward alone (no task reward), on the point mass.
 
-    python benchmarks/learned_reward_sac.py [--checkpoint RUN/checkpoints/best] [--seeds 0 1 2] [--frames 6000]
+    python -m benchmarks.learning.learned_reward_sac [--checkpoint RUN/checkpoints/best] [--seeds 0 1 2] [--frames 6000]
 
 Without ``--checkpoint`` it first trains MPAIL2 on the point mass (preset ``point_mass``, about two minutes) in a
 scratch folder. Then, per seed, ``SACLoss`` learns from ``("next", "learned_reward")`` written by
@@ -23,6 +23,7 @@ import torch
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from benchmarks.records import ROOT
 from torchrl_mpail2.agents import LearnedRewardTransform
 from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts.sac import fit_sac
@@ -30,7 +31,7 @@ from torchrl_mpail2.modules import make_mpail2_modules
 from torchrl_mpail2.trainers import MPAIL2Trainer, TrainConfig, apply_overrides, preset
 from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_seeds, summarize_outcomes
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
+RESULTS = ROOT / "docs" / "results" / "diagnostics"
 EVAL_SEED = TrainConfig().eval_seed  # the fixed evaluation episodes of every run
 
 

@@ -1,14 +1,14 @@
 """Diagnostic: how good are the policy's plans by the planner's own score, next to the plans MPPI finds?
 
-    python benchmarks/actor_vs_planner.py RUN_DIR [--checkpoint last] [--steps 500] [--out NAME.json]
+    python -m torchrl_mpail2.diagnostics actor_vs_planner RUN_DIR [--checkpoint last] [--steps 500] [--out F.json]
 
 Loads a run's checkpoint, collects start states from random-action rollouts of the run's environment, and
 scores plans with :meth:`LatentMPPIPlanner.score` (the planner's return, two Q heads): the policy's mean plan
 and MPPI's final mean. Then, with dynamics, reward and Q frozen, it re-trains
 a freshly initialised policy for ``--steps`` Adam steps under three objectives and scores its mean plan again:
 ``actor`` (the package's actor loss: stochastic plans, lambda-return, entropy), ``deterministic_lambda`` (the mean
-plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Writes
-``docs/results/diagnostics/actor_vs_planner.json`` (``--out``: another name in that folder).
+plan's lambda-return) and ``deterministic_planner`` (the mean plan's planner return). Prints the scores; ``--out``
+writes them, with the re-training curves, to a JSON file.
 """
 from __future__ import annotations
 
@@ -24,7 +24,6 @@ from torchrl_mpail2.trainers import MPAIL2Trainer
 from torchrl_mpail2.data import checkpoint as ckpt
 from torchrl_mpail2.config import ExperimentConfig
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics"
 OBJECTIVES = ("actor", "deterministic_lambda", "deterministic_planner")
 
 
@@ -46,15 +45,15 @@ def _objective(name: str, trainer: MPAIL2Trainer, z: torch.Tensor, heads: torch.
         return -trainer.agent.planner.score(z, plan.unsqueeze(1), heads).mean()
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", type=Path)
     p.add_argument("--checkpoint", default="last")
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--rollouts", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="actor_vs_planner.json", help="file name under docs/results/diagnostics")
-    args = p.parse_args()
+    p.add_argument("--out", type=Path, help="write the result to this JSON file")
+    args = p.parse_args(argv)
     if not (args.run_dir / "checkpoints" / args.checkpoint).is_dir():
         raise SystemExit(f"no checkpoint {args.run_dir / 'checkpoints' / args.checkpoint}")
     torch.manual_seed(args.seed)
@@ -98,8 +97,8 @@ def main() -> None:
                 curve.append(policy_score())
         result["retrained"][name] = {"policy_mean_plan": curve[-1], "curve": curve}
         print(name, [round(c, 3) for c in curve], flush=True)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / args.out).write_text(json.dumps(result, indent=2))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps({k: v for k, v in result.items() if k != "retrained"}, indent=2))
 
 

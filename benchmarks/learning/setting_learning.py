@@ -6,9 +6,9 @@ on at once; ``--mode compile`` compares the eager planner with ``planner.compile
 ``python -m torchrl_mpail2.train --preset point_mass ...`` for each seed, the two arms side by side (one thread
 each), or reads finished runs, and writes ``docs/results/speed/<mode>_<setting>_learning.{json,md}``.
 
-    python benchmarks/setting_learning.py                          # one seed, both arms (about 8 minutes on 2 cores)
-    python benchmarks/setting_learning.py --mode compile --seeds 0 1 2
-    python benchmarks/setting_learning.py --mode update --runs-root DIR   # summarise finished runs
+    python -m benchmarks.learning.setting_learning                          # one seed, both arms (about 8 minutes on 2 cores)
+    python -m benchmarks.learning.setting_learning --mode compile --seeds 0 1 2
+    python -m benchmarks.learning.setting_learning --mode update --runs-root DIR   # summarise finished runs
 """
 from __future__ import annotations
 
@@ -20,7 +20,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.records import ROOT
+
 
 #: Per mode: the overrides that turn the setting on, the two arms' labels, and the results' file stem.
 MODES = {
@@ -55,7 +56,7 @@ def read_run(folder: Path) -> dict:
 def markdown(mode: str, results: dict) -> str:
     overrides, arms, _ = MODES[mode]
     lines = [f"# Point mass learning without and with `{' '.join(overrides)}`", "",
-             f"`python benchmarks/setting_learning.py --mode {mode} --seeds {' '.join(map(str, results['seeds']))}`: "
+             f"`python -m benchmarks.learning.setting_learning --mode {mode} --seeds {' '.join(map(str, results['seeds']))}`: "
              "`python -m torchrl_mpail2.train --preset point_mass` per seed, the two arms side by side at one thread "
              "each. Any-step success of the deterministic-planner evaluations (10 episodes each) after episodes "
              + " / ".join(str(e["episode"]) for e in results["runs"][0][arms[0]]["evals"]) + ":", "",

@@ -6,8 +6,8 @@ table and writes ``docs/results/diagnostics/scripted_experts.json``. An episode 
 
 Usage::
 
-    python benchmarks/scripted_experts.py                 # 50 episodes per task
-    python benchmarks/scripted_experts.py --episodes 5 --tasks Push --no-write
+    python -m benchmarks.learning.scripted_experts                 # 50 episodes per task
+    python -m benchmarks.learning.scripted_experts --episodes 5 --tasks Push --no-write
 """
 
 from __future__ import annotations
@@ -16,15 +16,15 @@ import argparse
 import json
 import platform
 import time
-from pathlib import Path
 
 import torch
 
+from benchmarks.records import ROOT
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS as TASKS
 from torchrl_mpail2.envs.robosuite_env import make_robosuite_env
 from torchrl_mpail2.experts.scripted import LiftExpert, PushExpert
 
-RESULTS_PATH = Path(__file__).resolve().parents[1] / "docs" / "results" / "diagnostics" / "scripted_experts.json"
+RESULTS_PATH = ROOT / "docs" / "results" / "diagnostics" / "scripted_experts.json"
 WARMUP_STEPS = 20  # robosuite's first steps include numba compilation
 
 

@@ -21,7 +21,7 @@ from torchrl_mpail2.functional import mppi_weights
 from torchrl_mpail2.modules import value as value_module
 from torchrl_mpail2.modules.encoder import validate_observations
 from torchrl_mpail2.modules.policy import is_deterministic
-from torchrl_mpail2.objectives import _base, actor
+from torchrl_mpail2.objectives import actor, base
 from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.mppi import LatentMPPIPlanner
 
@@ -134,9 +134,9 @@ def _stacked_layer_norm(self, x, heads=None):
 def initial_behaviour():
     """Runs the losses and the Q-ensemble as they were before the speed work."""
     with contextlib.ExitStack() as stack:
-        stack.enter_context(mock.patch.object(_base.MPAIL2LossBase, "encode", _encode))
-        stack.enter_context(mock.patch.object(_base.MPAIL2LossBase, "replay_latents", _replay_latents))
-        stack.enter_context(mock.patch.object(_base.MPAIL2LossBase, "expert_latents", _expert_latents))
+        stack.enter_context(mock.patch.object(base.MPAIL2LossBase, "encode", _encode))
+        stack.enter_context(mock.patch.object(base.MPAIL2LossBase, "replay_latents", _replay_latents))
+        stack.enter_context(mock.patch.object(base.MPAIL2LossBase, "expert_latents", _expert_latents))
         stack.enter_context(mock.patch.object(actor, "frozen", _frozen))
         stack.enter_context(mock.patch.object(value_module.StackedLinear, "forward", _stacked_linear))
         stack.enter_context(mock.patch.object(value_module.StackedLayerNorm, "forward", _stacked_layer_norm))

@@ -1,11 +1,27 @@
-"""Writing a benchmark's record: ``<name>.json`` (with the commit, the machine and a note) and ``<name>.md``.
-Torch-free, so that a parent process that only starts and waits for children stays small."""
+"""What every benchmark shares, torch-free so that a parent process that only starts and waits for children stays
+small: the checkout's root, a child process's environment, the commit, and writing a record (``<name>.json`` with
+the commit, the machine and a note, and ``<name>.md``)."""
 from __future__ import annotations
 
 import json
+import os
 import platform
 import subprocess
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+"""The checkout these benchmarks belong to (children run there, results default under its ``docs/results``)."""
+
+
+def child_env(threads: int | None = None) -> dict:
+    """``os.environ`` for a benchmark's child process: this checkout first on ``PYTHONPATH``, then whatever the
+    caller's ``PYTHONPATH`` held (packages installed outside the environment, as on a borrowed GPU machine), and
+    ``OMP_NUM_THREADS`` where ``threads`` is given."""
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    env = {**os.environ, "PYTHONPATH": path}
+    if threads is not None:
+        env["OMP_NUM_THREADS"] = str(threads)
+    return env
 
 
 def git_commit(where: Path, short: bool = True) -> str | None:

@@ -10,9 +10,9 @@ For each setting, two planners on the same networks and observations, one eager 
 * ``max_action_difference``: the largest difference between the two planners' actions over the timed calls;
 * ``break_even_calls``: compile time over the time saved per call.
 
-    python benchmarks/compile_speed.py                          # JSON + Markdown in docs/results/speed
-    python benchmarks/compile_speed.py --settings lift_state --calls 5
-    python benchmarks/compile_speed.py --checkpoint RUN/checkpoints/episode_000170 --calls 30 --out FILE
+    python -m benchmarks.speed.compile_speed                          # JSON + Markdown in docs/results/speed
+    python -m benchmarks.speed.compile_speed --settings lift_state --calls 5
+    python -m benchmarks.speed.compile_speed --checkpoint RUN/checkpoints/episode_000170 --calls 30 --out FILE
 
 ``--checkpoint`` measures a trained agent instead: the checkpoint's networks and planner settings, planning from
 observations of a short random rollout of the run's own environment (one per call), so that the agreement of the two
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -31,14 +30,12 @@ from tensordict import TensorDict
 from torchrl.data import Bounded
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine, median_ms, random_observations  # noqa: E402
+from benchmarks.records import ROOT
+from benchmarks.speed.common import machine, median_ms, random_observations
+from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, ModelConfig, PlannerConfig
+from torchrl_mpail2.modules import MPAIL2Modules
+from torchrl_mpail2.config import preset
 
-from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, ModelConfig, PlannerConfig  # noqa: E402
-from torchrl_mpail2.modules import MPAIL2Modules  # noqa: E402
-from torchrl_mpail2.config import preset  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 #: name -> (model, planner, observation shapes, action dim, description)
 SETTINGS = {
     "lift_state": (preset("lift_state").model, preset("lift_state").planner,

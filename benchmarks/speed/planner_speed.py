@@ -19,15 +19,14 @@ Also: useful GFLOP per planning call against the machine's fp32 / bf16 GEMM ceil
 the cost of ``validate_observations``, and bf16 plan quality (first-action distance to the fp32 planner on the same
 seed and inputs, next to the distance between two fp32 seeds; elite overlap when scoring the same candidates).
 
-    python benchmarks/planner_speed.py                      # JSON + Markdown in docs/results/speed
-    python benchmarks/planner_speed.py --settings state --calls 3
+    python -m benchmarks.speed.planner_speed                      # JSON + Markdown in docs/results/speed
+    python -m benchmarks.speed.planner_speed --settings state --calls 3
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -40,16 +39,14 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules.planners import MPPIPlanner
 from torchrl.objectives.value import TDLambdaEstimator
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SETTINGS, gemm_ceiling, machine, median_ms, random_observations  # noqa: E402
-from _reference import InitialPlanner  # noqa: E402
+from benchmarks.records import ROOT
+from benchmarks.speed.common import SETTINGS, gemm_ceiling, machine, median_ms, random_observations
+from benchmarks.speed.reference import InitialPlanner
+from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, PlannerConfig
+from torchrl_mpail2.modules.encoder import validate_observations
+from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
+from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
-from torchrl_mpail2 import LatentMPPIPlanner, LossConfig, PlannerConfig  # noqa: E402
-from torchrl_mpail2.modules.encoder import validate_observations  # noqa: E402
-from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE  # noqa: E402
-from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 class PolicyValue(nn.Module):

@@ -1,7 +1,7 @@
 """Speed of an evaluation: the fixed episodes one by one against ``train.eval_envs`` of them in lockstep.
 
-    python benchmarks/eval_speed.py [--preset lift_state] [--episodes 8] [--eval-envs 1 8] [overrides ...]
-    python benchmarks/eval_speed.py --preset paper_lift_state --eval-envs 1 8 train.device=cuda train.demos=DIR
+    python -m benchmarks.speed.eval_speed [--preset lift_state] [--episodes 8] [--eval-envs 1 8] [overrides ...]
+    python -m benchmarks.speed.eval_speed --preset paper_lift_state --eval-envs 1 8 train.device=cuda train.demos=DIR
 
 For each ``--eval-envs`` value a fresh trainer of the preset (same seed, so the same untrained weights) plays one
 evaluation of ``--episodes`` episodes (``MPAIL2Trainer.evaluate``) twice: the first builds the extra environments
@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 
+from benchmarks.records import ROOT, write_record
 from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
 from torchrl_mpail2.trainers.collection import episode_bound
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from _results import write_record  # noqa: E402
 RESULTS = ROOT / "docs" / "results" / "speed"
 
 

@@ -1,6 +1,6 @@
 """Does a Lift run's learned objective prefer to keep a grasped cube? One number per saved checkpoint.
 
-    python benchmarks/grasp_preference.py RUN_DIR [--states 64] [--name NAME]
+    python -m torchrl_mpail2.diagnostics grasp_preference RUN_DIR [--states 64] [--out F.json]
 
 From the run's replay buffer it draws ``--states`` observations where the cube is grasped but not lifted (Lift's
 shaped task reward, scaled to [0, 1] by robosuite: reach alone is at most 1/2.25, grasping adds 0.25/2.25, a
@@ -9,11 +9,11 @@ scores two copies with the planner's own return (learned reward over H steps plu
 the gripper command held at +1 (close) and one at -1 (open) for all H steps. Robosuite's Panda gripper moves by
 the sign of the command, so a planner whose return prefers -1 here lets the cube go.
 
-Writes ``RUN_DIR/grasp_preference.json`` and, with ``--name``, ``docs/results/diary/<name>_grasp_preference.json``:
+Writes ``RUN_DIR/grasp_preference.json`` and, with ``--out``, a copy to that file:
 per checkpoint, the mean return difference (close minus open) split into its learned-reward part (H discounted
 steps) and its terminal-value part, the fraction of states that prefer closing, the
 quartiles of the planned first gripper command, and the evaluation success from ``checkpoint_evals.json`` if
-``benchmarks/evaluate_checkpoints.py`` has run.
+``benchmarks/learning/evaluate_checkpoints.py`` has run.
 """
 from __future__ import annotations
 
@@ -25,9 +25,10 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from evaluate_checkpoints import RESULTS, numbered_checkpoints, run_env
 from torchrl_mpail2.agents import MPAIL2Agent
+from torchrl_mpail2.data.checkpoint import numbered_checkpoints
 from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
+from torchrl_mpail2.trainers.evaluation import evaluation_env
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
 GRIPPER = -1  # the gripper command is the last action dimension
@@ -65,18 +66,18 @@ def preference(agent: MPAIL2Agent, states: TensorDict) -> dict:
             "planned_gripper_quartiles": [round(q, 3) for q in quartiles.tolist()]}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", type=Path)
     p.add_argument("--states", type=int, default=64)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--name", help="also write docs/results/diary/<name>_grasp_preference.json")
-    args = p.parse_args()
+    p.add_argument("--out", type=Path, help="also write the result to this JSON file")
+    args = p.parse_args(argv)
     evals_path = args.run_dir / "checkpoint_evals.json"
     evals = {r["checkpoint"]: r for r in json.loads(evals_path.read_text())["checkpoints"]} if evals_path.exists() else {}
     rows = []
     torch.set_num_threads(args.threads)
-    env, _ = run_env(args.run_dir)
+    env = evaluation_env(json.loads((args.run_dir / "config.json").read_text())["train"])
     checkpoints = numbered_checkpoints(args.run_dir)
     if not checkpoints:
         raise SystemExit(f"no numbered checkpoints under {args.run_dir / 'checkpoints'}")
@@ -96,8 +97,8 @@ def main() -> None:
     env.close()
     result = {"run": args.run_dir.name, "states": int(states.shape[0]), "checkpoints": rows}
     (args.run_dir / "grasp_preference.json").write_text(json.dumps(result, indent=2))
-    if args.name:
-        (RESULTS / f"{args.name}_grasp_preference.json").write_text(json.dumps(result, indent=2))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2))
 
 
 if __name__ == "__main__":

@@ -15,8 +15,8 @@ is timed apart (``first_update_ms``). Any variant may also end in ``_sync_free``
 multi-tensor loop) handed each stage's not-finite flag instead of a host check per stage; variants without it keep
 the updater's default (host checks on CPU, sync-free on CUDA).
 
-    python benchmarks/update_speed.py                       # all configurations, JSON + Markdown in docs/results/speed
-    python benchmarks/update_speed.py --settings state --rounds 1 --updates 2
+    python -m benchmarks.speed.update_speed                       # all configurations, JSON + Markdown in docs/results/speed
+    python -m benchmarks.speed.update_speed --settings state --rounds 1 --updates 2
 """
 from __future__ import annotations
 
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _child_env import child_env  # noqa: E402
-from _common import SETTINGS, machine, median_ms, replay_batch  # noqa: E402
+from benchmarks.records import ROOT, child_env
+from benchmarks.speed.common import SETTINGS, machine, median_ms, replay_batch
+
 
 COMPILED = "_compiled"
 SYNC_FREE = "_sync_free"
@@ -45,7 +45,6 @@ STAGE_CALLS = (("dynamics loss", "loss.dynamics_loss.forward"), ("latents (repla
                ("latents (replay + expert)", "loss.expert_latents"), ("reward loss", "loss.reward_loss.forward"),
                ("value loss", "loss.value_loss.forward"), ("value Polyak", "updater.target_updater.step"),
                ("actor loss", "loss.actor_loss.forward"))
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _instrument(updater, record: dict) -> None:
@@ -92,7 +91,7 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
     loss = MPAIL2Loss(modules, LossConfig(transitions_per_window=1 if variant.startswith("one_transition") else None))
     td = replay_batch(setting, batch, steps)
     if variant == "initial":
-        from _reference import initial_behaviour
+        from benchmarks.speed.reference import initial_behaviour
         context = initial_behaviour()
     else:
         import contextlib

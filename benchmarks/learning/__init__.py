@@ -1,0 +1,1 @@
+"""Learning benchmarks: ``python -m benchmarks.learning.NAME --help``."""
