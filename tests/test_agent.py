@@ -1,6 +1,7 @@
 """The agent object: built from switches, loaded from a checkpoint on its own, handed to the trainer."""
 import importlib
 import json
+import math
 import shutil
 
 import pytest
@@ -169,6 +170,28 @@ def test_re_evaluating_checkpoints_scores_the_runs_own_evaluation_episodes(train
     assert [(r["episode"], r["source"]) for r in only["checkpoints"]] == [(3, "run")] and only["only_evaluated"]
     with pytest.raises(SystemExit, match="no checkpoint from episode 0 that the run evaluated itself on 7 episodes"):
         bench.evaluate_run(run_dir, episodes=7, only_evaluated=True)
+
+
+def test_the_actor_versus_planner_diagnostic_scores_a_runs_checkpoint(trained_run, tmp_path):
+    """``python -m torchrl_mpail2.diagnostics actor_vs_planner`` on a run's numbered checkpoint: both plans scored,
+    the policy re-trained under each objective, the result written where ``--out`` says."""
+    from torchrl_mpail2.data.checkpoint import numbered_checkpoints
+    from torchrl_mpail2.diagnostics import actor_vs_planner
+    from torchrl_mpail2.diagnostics.__main__ import COMMANDS
+
+    _, run_dir = trained_run
+    assert [(episode, path.name) for episode, path in numbered_checkpoints(run_dir)] == [(3, "episode_000003")]
+    assert COMMANDS["actor_vs_planner"] is actor_vs_planner.main
+    out = tmp_path / "avp.json"
+    actor_vs_planner.main([str(run_dir), "--checkpoint", "episode_000003", "--steps", "2", "--rollouts", "1",
+                           "--out", str(out)])
+    result = json.loads(out.read_text())
+    assert result["start_states"] > 0 and result["checkpoint"] == "episode_000003"
+    assert set(result["retrained"]) == set(actor_vs_planner.OBJECTIVES)
+    for curve in (r["curve"] for r in result["retrained"].values()):
+        assert len(curve) == 3 and all(math.isfinite(c) for c in curve)  # before, then after each of the 2 steps
+    with pytest.raises(SystemExit, match="no checkpoint"):
+        actor_vs_planner.main([str(run_dir), "--checkpoint", "episode_000099"])
 
 
 def test_checkpoint_evaluation_reads_the_runs_own_resumes_from_its_file_and_scores_the_best_held_out(
