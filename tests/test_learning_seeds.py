@@ -85,6 +85,24 @@ def test_a_finished_seed_is_extended_to_more_episodes_and_an_interrupted_one_res
     assert bench.seed_command(run, 0, args, [])[-3:] == ["--resume", str(run), "train.total_episodes=300"]
 
 
+def test_a_seed_a_stop_signal_ended_resumes_is_unfinished_and_is_not_scored_held_out(bench, tmp_path, monkeypatch):
+    _fake_seed(tmp_path, 0, [(50, 0.0, 0.0)], episodes=79)
+    run = tmp_path / "demo" / "seed0"
+    (run / "checkpoints" / "last").mkdir(parents=True)
+    (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0, "stopped_by": "SIGTERM"}))
+    assert bench.summarize("demo", tmp_path)["per_seed"][0]["finished"] is False
+    played = []
+    monkeypatch.setattr(bench.subprocess, "run", lambda cmd, **kw: played.append(cmd))
+    bench.score_held_out(type("Args", (), {"held_out": 50})(), [(0, run)])
+    assert played == []  # half an hour a checkpoint on cameras, for a seed that is not done
+    args = type("Args", (), {"episodes": 300, "extend_min": 0.0})()
+    assert bench.seed_command(run, 0, args, [])[-3:] == ["--resume", str(run), "train.total_episodes=300"]
+    assert not (run / "summary.json").exists() and (run / "summary.part0.json").exists()
+    (run / "summary.json").write_text("{torn")
+    with pytest.raises(SystemExit, match="summary.json is not valid JSON"):
+        bench.seed_command(run, 0, args, [])
+
+
 def test_child_processes_import_the_checkout_first_and_keep_the_callers_path(bench, monkeypatch):
     # on a borrowed GPU machine torchrl and robosuite live outside the environment, on PYTHONPATH: a child that
     # replaced it could not import them

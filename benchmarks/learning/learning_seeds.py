@@ -61,22 +61,36 @@ def _episodes_done(run_dir: Path) -> int:
     return len(_read_jsonl(run_dir / "metrics.jsonl"))
 
 
+def stopped_by_signal(run_dir: Path) -> bool:
+    """The seed's last launch ended at a stop signal (its ``summary.json`` names it in ``stopped_by``), not at its
+    episodes or its wall-clock budget: it is interrupted, not finished."""
+    path = run_dir / "summary.json"
+    if not path.exists():
+        return False
+    try:
+        return bool(json.loads(path.read_text()).get("stopped_by"))
+    except json.JSONDecodeError as error:
+        raise SystemExit(f"{path} is not valid JSON ({error}): move it aside to resume or summarise the seed")
+
+
 def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[str] | None:
     """The training command for one seed: None when it is done, a resume when it has a checkpoint.
 
     A seed that stopped at its wall-clock budget short of ``--episodes`` counts as done, unless ``--extend-min``
-    asks for more time: then it resumes from its last checkpoint for that long. A resumed seed trains to
-    ``--episodes``, so a finished run is extended by asking for more episodes with ``--extend-min``.
+    asks for more time: then it resumes from its last checkpoint for that long. One a stop signal ended (its
+    summary's ``stopped_by``) resumes as an interrupted one does. A resumed seed trains to ``--episodes``, so a
+    finished run is extended by asking for more episodes with ``--extend-min``.
     """
     base = [sys.executable, "-m", "torchrl_mpail2.train"]
     resume = [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}"]
     if getattr(args, "checkpoint_every", None):  # a resumed run may save its checkpoints at another spacing
         resume.append(f"train.checkpoint_every={args.checkpoint_every}")
     if (run_dir / "summary.json").exists():
-        if args.extend_min and _episodes_done(run_dir) < args.episodes:
+        stopped = stopped_by_signal(run_dir)
+        if (stopped or args.extend_min) and _episodes_done(run_dir) < args.episodes:
             # the earlier part's summary is kept so that the seed's wall time adds up over its parts
             (run_dir / "summary.json").rename(run_dir / f"summary.part{len(list(run_dir.glob('summary.part*.json')))}.json")
-            return [*resume, f"train.max_wall_s={args.extend_min * 60}"]
+            return [*resume, f"train.max_wall_s={args.extend_min * 60}"] if args.extend_min else resume
         return None
     if (run_dir / "checkpoints" / "last").exists():
         return resume
@@ -102,8 +116,8 @@ def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     if not args.held_out:
         return
     for seed, run_dir in seeds:
-        if not (run_dir / "summary.json").exists() or not (run_dir / "checkpoints").exists():
-            continue
+        if not (run_dir / "summary.json").exists() or stopped_by_signal(run_dir) or not (run_dir / "checkpoints").exists():
+            continue  # held-out scores are for finished seeds only
         cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
                "--held-out", str(args.held_out), "--threads", "1"]
         with open(run_dir.parent / f"seed{seed}.log", "a") as log:
@@ -215,7 +229,7 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
         config = json.loads((run_dir / "config.json").read_text())
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": config, "evals": evals, "episodes": episodes,
-            "finished": bool(summary), "wall_time_s": wall, "parts": len(parts) + bool(summary),
+            "finished": bool(summary) and not summary.get("stopped_by"), "wall_time_s": wall, "parts": len(parts) + bool(summary),
             "time_split_s": _time_split(parts + [summary]),
             "all_checkpoints": all_checkpoints(run_dir, config["train"])}
     if not seeds:
