@@ -56,9 +56,18 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     if not (args.run_dir / "checkpoints" / args.checkpoint).is_dir():
         raise SystemExit(f"no checkpoint {args.run_dir / 'checkpoints' / args.checkpoint}")
+    with tempfile.TemporaryDirectory() as scratch:  # the rebuilt trainer's own run folder, not kept
+        result = compare(args, Path(scratch))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps({k: v for k, v in result.items() if k != "retrained"}, indent=2))
+
+
+def compare(args: argparse.Namespace, scratch: Path) -> dict:
+    """Scores the policy's and MPPI's mean plans, then re-trains the policy under each of :data:`OBJECTIVES`."""
     torch.manual_seed(args.seed)
     cfg = ExperimentConfig.from_dict(json.loads((args.run_dir / "config.json").read_text()))
-    cfg.train.run_dir = tempfile.mkdtemp()
+    cfg.train.run_dir = str(scratch)
     trainer = MPAIL2Trainer(cfg)
     state = ckpt.read_checkpoint(args.run_dir / "checkpoints" / args.checkpoint)
     trainer.agent.modules.load_state_dict(state["modules"])
@@ -97,9 +106,8 @@ def main(argv: list[str] | None = None) -> None:
                 curve.append(policy_score())
         result["retrained"][name] = {"policy_mean_plan": curve[-1], "curve": curve}
         print(name, [round(c, 3) for c in curve], flush=True)
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps({k: v for k, v in result.items() if k != "retrained"}, indent=2))
+    trainer.env.close()
+    return result
 
 
 if __name__ == "__main__":
