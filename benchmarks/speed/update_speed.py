@@ -126,8 +126,9 @@ def worker(setting_name: str, variant: str, batch: int, steps: int, updates: int
 
 
 def run_worker(args, setting: str, variant: str, profile: bool) -> dict:
-    cmd = [sys.executable, __file__, "--worker", setting, variant, "--batch", str(args.batch), "--steps", str(args.steps),
-           "--updates", str(args.updates), "--threads", str(args.threads)] + (["--profile"] if profile else [])
+    cmd = [sys.executable, "-m", "benchmarks.speed.update_speed", "--worker", setting, variant, "--batch", str(args.batch),
+           "--steps", str(args.steps), "--updates", str(args.updates), "--threads", str(args.threads),
+           *(["--profile"] if profile else [])]
     proc = subprocess.run(cmd, capture_output=True, text=True, env=child_env(), cwd=ROOT)
     if proc.returncode != 0:
         raise RuntimeError(f"worker {setting}/{variant} failed:\n{proc.stderr[-3000:]}")
