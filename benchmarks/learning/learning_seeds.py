@@ -9,13 +9,13 @@
         --init-from runs/learning/push_state/seed{seed}/checkpoints/last --transfer world-model   # transfer
 
 Each seed trains in its own process (``--parallel`` at a time, one torch thread each) under
-``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done, one
-with a checkpoint resumes from it, one without starts afresh. Every evaluation plays the same episodes (env seeds
+``runs/learning/NAME/seed<k>``. Re-running the same command is safe: a seed with a ``summary.json`` is done (unless a
+stop signal ended it), one with a checkpoint resumes from it, one without starts afresh. Every evaluation plays the same episodes (env seeds
 ``train.eval_seed + i``, seeded planner noise), and a checkpoint is saved at each, so the maximum over the
 evaluations is a Best (every checkpoint evaluated on the same episodes) and the final one the paper's Last. The
 paper's Best picks among checkpoints saved every 10 episodes: ``--checkpoint-every 10`` saves them (16 MB each on
-Lift), ``benchmarks/learning/evaluate_checkpoints.py RUN --from-episode E --held-out 50`` scores them (and the chosen one on
-50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
+Lift), ``python -m benchmarks.learning.evaluate_checkpoints RUN --from-episode E --held-out 50`` scores them (and the
+chosen one on 50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
 ``best_all_checkpoints_success_any_step`` and ``best_checkpoint_held_out_success_any_step`` beside the evaluations'.
 
 The headline of a configuration is its final checkpoint on episodes that chose nothing: once the seeds finish,
