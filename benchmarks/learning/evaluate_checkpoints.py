@@ -40,17 +40,11 @@ from tqdm import tqdm
 from benchmarks.records import ROOT
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data.checkpoint import numbered_checkpoints
-from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, evaluate_episodes, evaluation_env,
-                                                evaluation_seeds, run_eval_seed, summarize_outcomes)
+from torchrl_mpail2.trainers.evaluation import (ACTING, HELD_OUT_SEED_OFFSET, evaluate_episodes,
+                                                evaluation_seeds, run_eval_seed, run_evaluation_env, summarize_outcomes)
 from torchrl_mpail2.trainers.plots import EVAL_FILE, read_jsonl
 
 RESULTS = ROOT / "docs" / "results" / "diary"
-
-
-def run_env(run_dir: Path):
-    """The run's evaluation environment, rebuilt from ``run_dir/config.json`` (:func:`evaluation_env`)."""
-    train = json.loads((run_dir / "config.json").read_text())["train"]
-    return evaluation_env(train), train
 
 
 def _runs_own_rows(run_dir: Path, episodes: int) -> dict[int, dict]:
@@ -105,7 +99,7 @@ def evaluate_run(run_dir: Path, episodes: int | None = None, threads: int | None
         raise SystemExit(f"no numbered checkpoints from episode {from_episode} under {run_dir / 'checkpoints'}")
     if threads:
         torch.set_num_threads(threads)
-    env, train = run_env(run_dir)
+    env, train = run_evaluation_env(run_dir)
     episodes = episodes or train["eval_episodes"]
     seeds = evaluation_seeds(run_eval_seed(train), episodes)
     header = {"run": run_dir.name, "acting": acting, "episodes_per_checkpoint": episodes, "first_eval_seed": seeds[0],

@@ -61,16 +61,21 @@ def _episodes_done(run_dir: Path) -> int:
     return len(_read_jsonl(run_dir / "metrics.jsonl"))
 
 
-def stopped_by_signal(run_dir: Path) -> bool:
-    """The seed's last launch ended at a stop signal (its ``summary.json`` names it in ``stopped_by``), not at its
-    episodes or its wall-clock budget: it is interrupted, not finished."""
+def read_summary(run_dir: Path) -> dict | None:
+    """The seed's ``summary.json`` (the trainer writes it when a launch ends), None before that."""
     path = run_dir / "summary.json"
     if not path.exists():
-        return False
+        return None
     try:
-        return bool(json.loads(path.read_text()).get("stopped_by"))
+        return json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise SystemExit(f"{path} is not valid JSON ({error}): move it aside to resume or summarise the seed")
+
+
+def finished(summary: dict | None) -> bool:
+    """A launch ended at its episodes or its wall-clock budget; one a stop signal ended (``stopped_by``) is
+    interrupted, not finished."""
+    return summary is not None and not summary.get("stopped_by")
 
 
 def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[str] | None:
@@ -85,9 +90,9 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
     resume = [*base, "--resume", str(run_dir), f"train.total_episodes={args.episodes}"]
     if getattr(args, "checkpoint_every", None):  # a resumed run may save its checkpoints at another spacing
         resume.append(f"train.checkpoint_every={args.checkpoint_every}")
-    if (run_dir / "summary.json").exists():
-        stopped = stopped_by_signal(run_dir)
-        if (stopped or args.extend_min) and _episodes_done(run_dir) < args.episodes:
+    summary = read_summary(run_dir)
+    if summary is not None:
+        if (not finished(summary) or args.extend_min) and _episodes_done(run_dir) < args.episodes:
             # the earlier part's summary is kept so that the seed's wall time adds up over its parts
             (run_dir / "summary.json").rename(run_dir / f"summary.part{len(list(run_dir.glob('summary.part*.json')))}.json")
             return [*resume, f"train.max_wall_s={args.extend_min * 60}"] if args.extend_min else resume
@@ -116,7 +121,7 @@ def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     if not args.held_out:
         return
     for seed, run_dir in seeds:
-        if not (run_dir / "summary.json").exists() or stopped_by_signal(run_dir) or not (run_dir / "checkpoints").exists():
+        if not finished(read_summary(run_dir)) or not (run_dir / "checkpoints").exists():
             continue  # held-out scores are for finished seeds only
         cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
                "--held-out", str(args.held_out), "--threads", "1"]
@@ -220,7 +225,7 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
             continue
         evals = [e for e in _read_jsonl(run_dir / "eval.jsonl") if "success_rate_any_step" in e]
         episodes = _read_jsonl(run_dir / "metrics.jsonl")
-        summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
+        summary = read_summary(run_dir) or {}
         parts = [json.loads(f.read_text()) for f in run_dir.glob("summary.part*.json")]
         # the trainer counts the run's launches itself (``run_wall_time_s``, carried in its checkpoints); older
         # summaries counted one launch, so their parts are added up (launches cut by a crash are then missing)
@@ -229,7 +234,7 @@ def summarize(name: str, runs_root: Path, only: list[int] | None = None) -> dict
         config = json.loads((run_dir / "config.json").read_text())
         seeds[int(run_dir.name.removeprefix("seed"))] = {
             "config": config, "evals": evals, "episodes": episodes,
-            "finished": bool(summary) and not summary.get("stopped_by"), "wall_time_s": wall, "parts": len(parts) + bool(summary),
+            "finished": finished(summary or None), "wall_time_s": wall, "parts": len(parts) + bool(summary),
             "time_split_s": _time_split(parts + [summary]),
             "all_checkpoints": all_checkpoints(run_dir, config["train"])}
     if not seeds:

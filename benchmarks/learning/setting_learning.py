@@ -22,7 +22,6 @@ from pathlib import Path
 
 from benchmarks.records import ROOT
 
-
 #: Per mode: the overrides that turn the setting on, the two arms' labels, and the results' file stem.
 MODES = {
     "planner": (["planner.bf16=true"], ("fp32", "bf16"), "planner_bf16_learning"),

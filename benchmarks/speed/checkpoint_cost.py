@@ -23,7 +23,6 @@ from torchrl.data import LazyMemmapStorage, TensorDictReplayBuffer
 from benchmarks.records import ROOT, write_record
 from torchrl_mpail2.data.checkpoint import write_checkpoint
 
-
 CHUNK = 1000
 
 

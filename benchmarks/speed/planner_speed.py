@@ -48,7 +48,6 @@ from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
 from torchrl_mpail2.planners.latent_env import LatentWorldModelEnv
 
 
-
 class PolicyValue(nn.Module):
     """``V(z)``: mean over all Q heads of ``Q(z, a)``, ``a`` the first step of the policy mean at ``z``."""
 

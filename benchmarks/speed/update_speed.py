@@ -35,7 +35,6 @@ import torch
 from benchmarks.records import ROOT, child_env
 from benchmarks.speed.common import SETTINGS, machine, median_ms, replay_batch
 
-
 COMPILED = "_compiled"
 SYNC_FREE = "_sync_free"
 VARIANTS = ("initial", "optimised", "optimised_default_malloc", "one_transition_per_window", "optimised_mixed_bf16",

@@ -12,13 +12,12 @@ differ about equally) can rate the goal's surroundings below the arena's edges a
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 
-from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, staying_reward_and_value
+from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, report_map, staying_reward_and_value
 
 __all__ = ["arena_map"]
 
@@ -97,10 +96,4 @@ def main(argv: list[str] | None = None) -> dict:
         p.error("--grid must be at least 2")
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
     result = {"checkpoint": str(args.checkpoint), **arena_map(agent, args.grid, glow=args.glow)}
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=1))
-    if args.plot is not None:
-        print(f"wrote {draw_arena_map(result, args.plot, str(args.checkpoint))}")
-    print(json.dumps({k: v for k, v in result.items() if not isinstance(v, list)}, indent=2))
-    return result
+    return report_map(result, args.out, args.plot, draw_arena_map)

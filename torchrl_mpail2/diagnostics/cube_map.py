@@ -11,13 +11,12 @@ The point-mass counterpart is :mod:`~torchrl_mpail2.diagnostics.arena_map`.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, staying_reward_and_value
+from torchrl_mpail2.diagnostics.state_maps import draw_reward_value_maps, report_map, staying_reward_and_value
 
 __all__ = ["cube_map"]
 
@@ -100,10 +99,4 @@ def main(argv: list[str] | None = None) -> dict:
         result = {"checkpoint": str(args.checkpoint), **cube_map(agent, env, args.grid)}
     finally:
         env.close()
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=1))
-    if args.plot is not None:
-        print(f"wrote {draw_cube_map(result, args.plot, str(args.checkpoint))}")
-    print(json.dumps({k: v for k, v in result.items() if not isinstance(v, list)}, indent=2))
-    return result
+    return report_map(result, args.out, args.plot, draw_cube_map)

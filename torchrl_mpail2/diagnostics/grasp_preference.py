@@ -28,7 +28,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl_mpail2.agents import MPAIL2Agent
 from torchrl_mpail2.data.checkpoint import numbered_checkpoints
 from torchrl_mpail2.modules.value import HEADS_PER_ESTIMATE
-from torchrl_mpail2.trainers.evaluation import evaluation_env
+from torchrl_mpail2.trainers.evaluation import run_evaluation_env
 
 GRASPED, LIFTED = 0.45, 0.99  # task-reward bounds of "grasped, not lifted" (see the module docstring)
 GRIPPER = -1  # the gripper command is the last action dimension
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> None:
     evals = {r["checkpoint"]: r for r in json.loads(evals_path.read_text())["checkpoints"]} if evals_path.exists() else {}
     rows = []
     torch.set_num_threads(args.threads)
-    env = evaluation_env(json.loads((args.run_dir / "config.json").read_text())["train"])
+    env, _ = run_evaluation_env(args.run_dir)
     checkpoints = numbered_checkpoints(args.run_dir)
     if not checkpoints:
         raise SystemExit(f"no numbered checkpoints under {args.run_dir / 'checkpoints'}")

@@ -3,12 +3,13 @@ mass, :mod:`.cube_map` for Push): the reward of staying :math:`r_\theta(z, z)`, 
 the value of the policy's plan :math:`Q_\zeta(z, \pi_\phi(z)_0)` (the mean over all heads), and their picture."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["draw_reward_value_maps", "staying_reward_and_value"]
+__all__ = ["draw_reward_value_maps", "report_map", "staying_reward_and_value"]
 
 
 @torch.no_grad()
@@ -44,3 +45,15 @@ def draw_reward_value_maps(result: dict, path: Path, extent: tuple[float, float,
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def report_map(result: dict, out: Path | None, plot: Path | None, draw) -> dict:
+    """A map command's output: ``result`` to the JSON file ``out``, ``draw(result, plot, title)`` to the PNG ``plot``
+    (each when given), its scalars printed; returns ``result``."""
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1))
+    if plot is not None:
+        print(f"wrote {draw(result, plot, str(result['checkpoint']))}")
+    print(json.dumps({k: v for k, v in result.items() if not isinstance(v, list)}, indent=2))
+    return result

@@ -13,7 +13,9 @@ played with the same number of environments.
 from __future__ import annotations
 
 import contextlib
+import json
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -26,7 +28,7 @@ from torchrl_mpail2.config import DEFAULT_EVAL_SEED, EVAL_ACTINGS
 from torchrl_mpail2.envs.keys import EPISODE_RETURN_KEY
 
 __all__ = ["DEFAULT_EVAL_SEED", "episode_outcome", "evaluate_episodes", "evaluate_episodes_lockstep",
-           "evaluation_env", "evaluation_seeds", "run_eval_seed", "summarize_outcomes"]
+           "evaluation_env", "evaluation_seeds", "run_eval_seed", "run_evaluation_env", "summarize_outcomes"]
 
 #: Safety cap on an evaluation episode's length (the envs end their episodes themselves).
 MAX_EVAL_STEPS = 100_000
@@ -64,6 +66,12 @@ def evaluation_env(train: Mapping) -> EnvBase:
 
     return make_env(train["env"], obs=train["obs"], seed=run_eval_seed(train),
                     **(train.get("env_kwargs") or {}))
+
+
+def run_evaluation_env(run_dir: Path) -> tuple[EnvBase, dict]:
+    """A run folder's :func:`evaluation_env` and the ``train`` section of its ``config.json`` it was built from."""
+    train = json.loads((Path(run_dir) / "config.json").read_text())["train"]
+    return evaluation_env(train), train
 
 
 @torch.no_grad()
