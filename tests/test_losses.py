@@ -120,6 +120,17 @@ def test_value_target_masks_terminal_transitions():
     assert not torch.allclose(y[~term.squeeze(-1)], r[~term.squeeze(-1)])
 
 
+def test_masked_value_loss_refuses_a_batch_without_termination_flags():
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, mask_terminal=True)
+    batch = replay_batch()
+    loss(batch)  # with the flags: fine
+    del batch["next", "terminated"]
+    with pytest.raises(KeyError, match="terminated"):
+        loss(batch)  # without them the mask would silently bootstrap through terminations
+    LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)(batch)  # unmasked: not needed
+
+
 def test_actor_loss_leaves_q_dynamics_reward_and_encoder_without_gradient():
     m = tiny_modules()
     loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)

@@ -83,7 +83,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         z, z_next = z.reshape(-1, z.shape[-1]), z_next.reshape(-1, z_next.shape[-1])
         action = self.require(tensordict, self.tensor_keys.action)
         action = action.reshape(-1, action.shape[-1])
-        terminated = tensordict.get(self.tensor_keys.terminated, None) if self.mask_terminal else None
+        terminated = self.require(tensordict, self.tensor_keys.terminated) if self.mask_terminal else None
         y, r = self.target(z, z_next, terminated)
         q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
         errors = (q - y).pow(2)  # [E, M]: each head regresses independently
