@@ -67,3 +67,19 @@ def test_a_checkpoint_can_be_played_with_other_planner_settings(tmp_path):
         use_planner_settings(agent, ["planner.nope=1"])
     with pytest.raises(ConfigError, match="num_elites"):
         use_planner_settings(agent, ["planner.num_elites=1000"])
+
+
+def test_a_camera_run_reads_its_phases_from_the_simulator_as_a_state_run_does(lift):
+    from torchrl_mpail2.diagnostics.lift_phases import SimulatorObject
+
+    pixels = make_env("robosuite/Lift", obs="pixels", seed=0).append_transform(SimulatorObject())
+    rollouts = []
+    for env in (lift, pixels):
+        env.set_seed(0)
+        rollouts.append(env.rollout(60, get_expert("robosuite/Lift", env), break_when_any_done=True))
+    state, camera = rollouts
+    assert "wrist_image" in camera["next"].keys() and "object" in pixels.observation_spec.keys()
+    assert torch.allclose(camera["next", "object"], state["next", "object"], atol=1e-5)
+    phases = lift_phases(camera)
+    assert phases == lift_phases(state) and phases["success"] and phases["grasped_steps"] > 0
+    pixels.close()

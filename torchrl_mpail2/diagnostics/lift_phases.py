@@ -1,7 +1,9 @@
 """Where Lift episodes fail: how far each evaluation episode gets through reach, grasp, lift and success.
 
 Read from the episode's own observations (robosuite Lift, ``"state"`` mode: ``"proprio"`` holds the finger joints
-at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's offset from the cube at ``[7:10]``):
+at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's offset from the cube at ``[7:10]``;
+a camera run's evaluation env gets the same ``"object"`` vector from the simulator, :class:`SimulatorObject`, which
+its agent does not read):
 
 * ``reach``: the end effector came within :data:`REACH_M` of the cube's centre;
 * ``grasp``: while within reach, the fingers were closed onto something: their opening at least :data:`CLOSED_BY_M`
@@ -35,8 +37,10 @@ from pathlib import Path
 import numpy as np
 import torch
 from tensordict import TensorDictBase
+from torchrl.data import Unbounded
+from torchrl.envs import Transform
 
-__all__ = ["cube_rise_m", "grasped_without_success", "hand_height", "held_states", "lift_phases", "play_lift_episodes",
+__all__ = ["SimulatorObject", "cube_rise_m", "grasped_without_success", "hand_height", "held_states", "lift_phases", "play_lift_episodes",
            "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
@@ -49,6 +53,34 @@ LIFT_M = 0.01
 #: at most about 1.3 cm per step, so it cannot have touched the cube by then.
 SETTLED_STEP = 5
 PHASES = ("reach", "grasp", "lift", "success")
+
+
+class SimulatorObject(Transform):
+    """Writes state mode's ``"object"`` vector (:func:`~torchrl_mpail2.envs.robosuite_observations.object_vector`:
+    cube position and quaternion, the end effector's offset from the cube) from the simulator into a camera run's
+    observations, so that its episodes' phases read as a state run's do. The agent reads only its encoder's keys."""
+
+    def __init__(self):
+        super().__init__(in_keys=[], out_keys=["object"])
+
+    def _object(self) -> torch.Tensor:
+        from torchrl_mpail2.envs.robosuite_env import robosuite_base
+        from torchrl_mpail2.envs.robosuite_observations import object_vector
+
+        base = robosuite_base(self.parent)
+        if base is None:
+            raise ValueError("SimulatorObject reads the simulator's cube and hand: it needs a robosuite env")
+        return torch.as_tensor(object_vector(base.privileged_state()))
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return next_tensordict.set("object", self._object())
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec):
+        observation_spec["object"] = Unbounded(shape=(10,), dtype=torch.float32, device=observation_spec.device)
+        return observation_spec
 
 
 def _check_state_keys(rollout: TensorDictBase) -> None:
@@ -148,7 +180,8 @@ def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[
                        acting: str = "deterministic") -> tuple:
     """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner (changed by
     ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
-    -> ``(agent, rollouts)``. Refuses runs other than robosuite/Lift in ``"state"`` mode, naming them."""
+    -> ``(agent, rollouts)``. Refuses runs other than robosuite/Lift with ``"proprio"`` observed (``"state"`` or
+    ``"pixels"``: a camera run's env gets :class:`SimulatorObject`), naming them."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds, run_eval_seed
 
@@ -156,10 +189,12 @@ def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[
     agent = MPAIL2Agent.from_checkpoint(path)
     use_planner_settings(agent, planner_overrides)
     train = agent.run_config["train"]
-    if train["env"] != "robosuite/Lift" or train["obs"] != "state":
-        raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' mode, this run is "
+    if train["env"] != "robosuite/Lift" or train["obs"] not in ("state", "pixels"):
+        raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' or 'pixels' mode, this run is "
                          f"{train['env']} with obs {train['obs']!r}")
     env = evaluation_env(train)  # the run's own evaluation env (the same cube as its evaluations)
+    if train["obs"] == "pixels":
+        env = env.append_transform(SimulatorObject())
     rollouts: list = []
     evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,
                       rollouts=rollouts, acting=acting)
@@ -180,7 +215,7 @@ def evaluate_checkpoint(path: str | Path, episodes: int, planner_overrides: list
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics lift_phases",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoints", nargs="+", help="checkpoint folders of robosuite/Lift state runs")
+    parser.add_argument("checkpoints", nargs="+", help="checkpoint folders of robosuite/Lift runs (state or cameras)")
     parser.add_argument("--episodes", type=int, default=20, help="the run's first N fixed evaluation episodes")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--threads", type=int, default=1)
