@@ -1,4 +1,6 @@
 """The critic profile along demonstrations: per-window means, the end-effector distance, and refusals by name."""
+import json
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -60,9 +62,18 @@ def test_a_checkpoint_is_profiled_on_demonstrations_and_foreign_ones_are_named(t
     assert all(torch.isfinite(torch.tensor(r["critic_mean"])) for r in result["profile"])
     assert "eef_to_cube_m" not in result["profile"][0]  # the point mass has no cube
     assert all(torch.isfinite(torch.tensor(r["q_mean"])) for r in result["profile"])
+    assert "agent_profile" not in result
     out = tmp_path / "profile.json"
-    main([str(ckpt), "--demos", str(demos), "--out", str(out), "--plot", str(tmp_path / "profile.png")])
+    main([str(ckpt), "--demos", str(demos), "--out", str(out), "--plot", str(tmp_path / "profile.png"),
+          "--agent-episodes", "2"])
     assert out.exists() and (tmp_path / "profile.png").stat().st_size > 0
+    written = json.loads(out.read_text())[0]
+    assert written["agent_episodes"] == 2
+    agent_rows = written["agent_profile"]  # both episodes play at least the first window (5 steps)
+    assert agent_rows[0]["step"] == 0 and agent_rows[0]["pairs"] == 2 * written["window"] == 2 * 5
+    assert all(torch.isfinite(torch.tensor([r["critic_mean"], r["q_mean"]])).all() for r in agent_rows)
+    with pytest.raises(SystemExit):
+        main([str(ckpt), "--demos", str(demos), "--agent-episodes", "-1"])
     with pytest.raises(Exception, match="nothere"):
         profile_checkpoint(ckpt, tmp_path / "nothere")
     foreign = save_demos(demos_from_arrays([torch.zeros(4, 2)], key="elsewhere"), tmp_path / "foreign")

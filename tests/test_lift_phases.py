@@ -70,7 +70,7 @@ def test_a_checkpoint_can_be_played_with_other_planner_settings(tmp_path):
 
 
 def test_a_camera_run_reads_its_phases_from_the_simulator_as_a_state_run_does(lift):
-    from torchrl_mpail2.diagnostics.lift_phases import SimulatorObject
+    from torchrl_mpail2.envs.robosuite_env import SimulatorObject
 
     pixels = make_env("robosuite/Lift", obs="pixels", seed=0).append_transform(SimulatorObject())
     rollouts = []
@@ -82,4 +82,18 @@ def test_a_camera_run_reads_its_phases_from_the_simulator_as_a_state_run_does(li
     assert torch.allclose(camera["next", "object"], state["next", "object"], atol=1e-5)
     phases = lift_phases(camera)
     assert phases == lift_phases(state) and phases["success"] and phases["grasped_steps"] > 0
+    pixels.close()
+
+
+def test_simulator_object_on_push_adds_the_distance_to_the_line():
+    from torchrl_mpail2.envs.robosuite_env import SimulatorObject
+
+    state, pixels = (make_env("robosuite/Push", obs=obs, seed=3) for obs in ("state", "external_pixels"))
+    pixels = pixels.append_transform(SimulatorObject())
+    assert pixels.observation_spec["object"].shape == state.observation_spec["object"].shape == (11,)
+    for env in (state, pixels):
+        env.set_seed(3)
+    assert torch.allclose(pixels.reset()["object"], state.reset()["object"], atol=1e-5)
+    with pytest.raises(ValueError, match="robosuite env"):
+        make_env("point_mass", seed=0).append_transform(SimulatorObject()).reset()
     pixels.close()

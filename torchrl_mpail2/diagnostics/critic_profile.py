@@ -3,12 +3,15 @@ checkpoint along demonstration episodes, averaged per window of steps, with its 
 policy's mean first action there.
 
     python -m torchrl_mpail2.diagnostics critic_profile CKPT [CKPT ...] --demos DIR [--window 5] [--out FILE.json] \
-        [--plot FILE.png]
+        [--plot FILE.png] [--agent-episodes N]
 
 Demonstrations the run did not train on (another seed's scripted demos, say) show whether the reward generalises:
 a critic that rises step by step along the held-out path rewards the task's progress; one that is flat over a phase
 (the approach, the grasp) gives the planner nothing to climb there. On robosuite Lift and Push the rows add the
-demonstrations' end-effector-to-cube distance.
+end-effector-to-cube distance where the episodes hold ``"object"``. ``--agent-episodes N`` profiles the checkpoint's
+own agent too, on its first N fixed evaluation episodes (the plan's mean; camera runs get the simulator's
+``"object"`` beside the pictures): a critic that scores the agent's steps as high as the expert's at the same step
+pays for what the agent does instead of the task.
 """
 from __future__ import annotations
 
@@ -67,9 +70,10 @@ def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], windo
     return rows
 
 
-def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> dict:
+def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5, agent_episodes: int = 0) -> dict:
     """:func:`critic_along_episodes` for a checkpoint and a demonstration folder (checked against the run's
-    observation keys) -> ``{checkpoint, demos, window, profile, reward_scale}``."""
+    observation keys) -> ``{checkpoint, demos, window, profile, reward_scale}``, with ``agent_profile`` along the
+    checkpoint's own first ``agent_episodes`` evaluation episodes (:func:`played_episodes`) where that is > 0."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.data.demo_files import load_demos
 
@@ -80,15 +84,44 @@ def profile_checkpoint(path: str | Path, demos: str | Path, window: int = 5) -> 
     if missing:
         raise KeyError(f"{demos}: the demonstrations lack the run's observation key(s) {missing} "
                        f"(they have {demonstrations.observation_keys})")
-    episodes = [demonstrations.episode(i).select(*keys) for i in range(demonstrations.num_episodes)]
-    eef_to_cube = None
-    if agent.run_config["train"]["env"] in ("robosuite/Lift", "robosuite/Push") and "object" in keys:
-        from torchrl_mpail2.envs.robosuite_observations import OBJECT_EEF_TO_CUBE as eef_to_cube
+    extra = ["object"] if "object" in demonstrations.observation_keys and "object" not in keys else []
+    episodes = [demonstrations.episode(i).select(*keys, *extra) for i in range(demonstrations.num_episodes)]
     net = agent.modules.reward.module
-    profile = critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube,
-                                    agent.modules.value.net, agent.modules.policy.net)
-    return {"checkpoint": str(path), "demos": str(demos), "window": window, "reward_scale": float(net.reward_scale),
-            "profile": profile}
+
+    def profile(episodes):
+        eef_to_cube = None
+        if agent.run_config["train"]["env"] in ("robosuite/Lift", "robosuite/Push") and "object" in episodes[0].keys():
+            from torchrl_mpail2.envs.robosuite_observations import OBJECT_EEF_TO_CUBE as eef_to_cube
+        return critic_along_episodes(agent.modules.encoder, net, episodes, window, eef_to_cube,
+                                     agent.modules.value.net, agent.modules.policy.net)
+
+    result = {"checkpoint": str(path), "demos": str(demos), "window": window, "reward_scale": float(net.reward_scale),
+              "profile": profile(episodes)}
+    if agent_episodes:
+        result["agent_episodes"] = agent_episodes
+        result["agent_profile"] = profile(played_episodes(agent, agent_episodes))
+    return result
+
+
+def played_episodes(agent, episodes: int) -> list[TensorDict]:
+    """The observations ``[T + 1]`` of the agent's first ``episodes`` fixed evaluation episodes (the plan's mean), in
+    the run's own evaluation env; robosuite camera runs also get the simulator's ``"object"`` (``SimulatorObject``)."""
+    from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds, run_eval_seed
+
+    train = agent.run_config["train"]
+    env = evaluation_env(train)
+    keys = list(agent.modules.encoder.in_keys)
+    if train["env"].startswith("robosuite/") and "object" not in env.observation_spec.keys():
+        from torchrl_mpail2.envs.robosuite_env import SimulatorObject
+
+        env = env.append_transform(SimulatorObject())
+    if "object" in env.observation_spec.keys() and "object" not in keys:
+        keys.append("object")
+    rollouts: list = []
+    evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,
+                      rollouts=rollouts)
+    env.close()
+    return [torch.cat([rollout[:1].select(*keys), rollout["next"].select(*keys)], 0) for rollout in rollouts]
 
 
 def plot_profiles(results: list[dict], out: str | Path) -> Path:
@@ -102,9 +135,13 @@ def plot_profiles(results: list[dict], out: str | Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 4))
     for i, result in enumerate(results):
         rows = result["profile"]
-        ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="o", color=f"C{i}",
-                label=Path(result["checkpoint"]).parent.parent.name + "/" + Path(result["checkpoint"]).name)
-    ax.set_xlabel(f"demonstration step (windows of {results[0]['window']})")
+        name = Path(result["checkpoint"]).parent.parent.name + "/" + Path(result["checkpoint"]).name
+        ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="o", color=f"C{i}", label=name)
+        if "agent_profile" in result:
+            rows = result["agent_profile"]
+            ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="x", ls="--", color=f"C{i}",
+                    label=f"{name}: its own episodes")
+    ax.set_xlabel(f"episode step (windows of {results[0]['window']}); dashed: the agent's own episodes")
     ax.set_ylabel("raw critic r(z, z') (mean over episodes)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")
@@ -128,18 +165,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--window", type=int, default=5, help="steps per row")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--plot", help="draw the profiles to this PNG file")
+    parser.add_argument("--agent-episodes", type=int, default=0, metavar="N",
+                        help="also profile the checkpoint's own agent on its first N fixed evaluation episodes")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
+    if args.agent_episodes < 0:
+        parser.error(f"--agent-episodes must be >= 0, got {args.agent_episodes}")
     torch.set_num_threads(args.threads)
     results = []
     for path in args.checkpoints:
-        result = profile_checkpoint(path, args.demos, args.window)
+        result = profile_checkpoint(path, args.demos, args.window, args.agent_episodes)
         results.append(result)
-        print(path)
-        for row in result["profile"]:
-            extra = f"  eef-cube {100 * row['eef_to_cube_m']:5.1f} cm" if "eef_to_cube_m" in row else ""
-            print(f"  steps {row['step']:3d}+  critic {row['critic_mean']:9.1f} ± {row['critic_std']:7.1f}  "
-                  f"Q {row['q_mean']:8.2f}{extra}")
+        for name in ("profile", "agent_profile"):
+            if name not in result:
+                continue
+            print(f"{path}: {'demonstrations' if name == 'profile' else 'its own evaluation episodes'}")
+            for row in result[name]:
+                extra = f"  eef-cube {100 * row['eef_to_cube_m']:5.1f} cm" if "eef_to_cube_m" in row else ""
+                print(f"  steps {row['step']:3d}+  critic {row['critic_mean']:9.1f} ± {row['critic_std']:7.1f}  "
+                      f"Q {row['q_mean']:8.2f}{extra}")
     if args.out:
         Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
         print(f"wrote {args.out}")

@@ -2,8 +2,8 @@
 
 Read from the episode's own observations (robosuite Lift, ``"state"`` mode: ``"proprio"`` holds the finger joints
 at ``[3:5]``, ``"object"`` the cube position at ``[0:3]`` and the end effector's offset from the cube at ``[7:10]``;
-a camera run's evaluation env gets the same ``"object"`` vector from the simulator, :class:`SimulatorObject`, which
-its agent does not read):
+a camera run's evaluation env gets the same ``"object"`` vector from the simulator,
+:class:`~torchrl_mpail2.envs.robosuite_env.SimulatorObject`, which its agent does not read):
 
 * ``reach``: the end effector came within :data:`REACH_M` of the cube's centre;
 * ``grasp``: while within reach, the fingers were closed onto something: their opening at least :data:`CLOSED_BY_M`
@@ -37,10 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import Unbounded
-from torchrl.envs import Transform
 
-__all__ = ["SimulatorObject", "cube_rise_m", "grasped_without_success", "hand_height", "held_states", "lift_phases", "play_lift_episodes",
+__all__ = ["cube_rise_m", "grasped_without_success", "hand_height", "held_states", "lift_phases", "play_lift_episodes",
            "summarize_phases", "use_planner_settings"]
 
 REACH_M = 0.02
@@ -53,34 +51,6 @@ LIFT_M = 0.01
 #: at most about 1.3 cm per step, so it cannot have touched the cube by then.
 SETTLED_STEP = 5
 PHASES = ("reach", "grasp", "lift", "success")
-
-
-class SimulatorObject(Transform):
-    """Writes state mode's ``"object"`` vector (:func:`~torchrl_mpail2.envs.robosuite_observations.object_vector`:
-    cube position and quaternion, the end effector's offset from the cube) from the simulator into a camera run's
-    observations, so that its episodes' phases read as a state run's do. The agent reads only its encoder's keys."""
-
-    def __init__(self):
-        super().__init__(in_keys=[], out_keys=["object"])
-
-    def _object(self) -> torch.Tensor:
-        from torchrl_mpail2.envs.robosuite_env import robosuite_base
-        from torchrl_mpail2.envs.robosuite_observations import object_vector
-
-        base = robosuite_base(self.parent)
-        if base is None:
-            raise ValueError("SimulatorObject reads the simulator's cube and hand: it needs a robosuite env")
-        return torch.as_tensor(object_vector(base.privileged_state()))
-
-    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return next_tensordict.set("object", self._object())
-
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def transform_observation_spec(self, observation_spec):
-        observation_spec["object"] = Unbounded(shape=(10,), dtype=torch.float32, device=observation_spec.device)
-        return observation_spec
 
 
 def _check_state_keys(rollout: TensorDictBase) -> None:
@@ -181,7 +151,8 @@ def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[
     """Plays the run's first ``episodes`` fixed evaluation episodes with the checkpoint's planner (changed by
     ``planner_overrides``, ``planner.FIELD=VALUE`` strings), acting as ``acting`` says (``evaluate_episodes``)
     -> ``(agent, rollouts)``. Refuses runs other than robosuite/Lift with ``"proprio"`` observed (``"state"`` or
-    ``"pixels"``: a camera run's env gets :class:`SimulatorObject`), naming them."""
+    ``"pixels"``: a camera run's env gets :class:`~torchrl_mpail2.envs.robosuite_env.SimulatorObject`), naming
+    them."""
     from torchrl_mpail2.agents import MPAIL2Agent
     from torchrl_mpail2.trainers.evaluation import evaluate_episodes, evaluation_env, evaluation_seeds, run_eval_seed
 
@@ -194,6 +165,8 @@ def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[
                          f"{train['env']} with obs {train['obs']!r}")
     env = evaluation_env(train)  # the run's own evaluation env (the same cube as its evaluations)
     if train["obs"] == "pixels":
+        from torchrl_mpail2.envs.robosuite_env import SimulatorObject
+
         env = env.append_transform(SimulatorObject())
     rollouts: list = []
     evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,

@@ -27,7 +27,7 @@ import robosuite  # noqa: E402
 import torch  # noqa: E402
 from tensordict import TensorDict, TensorDictBase  # noqa: E402
 from torchrl.data import Bounded, Categorical, Composite, Unbounded  # noqa: E402
-from torchrl.envs import EnvBase, TransformedEnv  # noqa: E402
+from torchrl.envs import EnvBase, Transform, TransformedEnv  # noqa: E402
 
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
 from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
@@ -169,8 +169,7 @@ class RobosuiteEnv(EnvBase):
             proprio_dim = PROPRIO_DIM + int(self.observe_gripper_command)
             observations["proprio"] = Unbounded((proprio_dim,), dtype=torch.float32, device=self.device)
         if self.obs_mode == "state":
-            object_dim = 11 if self.is_push else 10
-            observations["object"] = Unbounded((object_dim,), dtype=torch.float32, device=self.device)
+            observations["object"] = self.object_spec()
         if self.obs_mode in ("pixels", "external_pixels"):
             observations["external_image"] = image_spec
         if self.obs_mode == "pixels":
@@ -219,6 +218,14 @@ class RobosuiteEnv(EnvBase):
             state["line_y"] = np.array([sim_env.line_y])
             state["push_sign"] = np.array([sim_env.push_sign])
         return state
+
+    def object_observation(self) -> np.ndarray:
+        """State mode's ``"object"`` vector (:func:`object_vector`) read from the simulator now, in any mode."""
+        return object_vector(self.privileged_state(), self._sim_env.distance_to_line() if self.is_push else None)
+
+    def object_spec(self) -> Unbounded:
+        """The spec of :meth:`object_observation`: ``[10]`` on Lift, ``[11]`` on Push."""
+        return Unbounded((11 if self.is_push else 10,), dtype=torch.float32, device=self.device)
 
     def render(self, size: int = RENDER_SIZE, camera: str = EXTERNAL_CAMERA) -> np.ndarray:
         """An upright RGB frame ``[size, size, 3]`` uint8 of the current scene from ``camera`` (default: the
@@ -338,8 +345,7 @@ class RobosuiteEnv(EnvBase):
         if self.obs_mode in ("state", "pixels"):
             out["proprio"] = proprio_vector(sim_obs, self.gripper_command() if self.observe_gripper_command else None)
         if self.obs_mode == "state":
-            out["object"] = object_vector(self.privileged_state(),
-                                          self._sim_env.distance_to_line() if self.is_push else None)
+            out["object"] = self.object_observation()
         if self.obs_mode in ("pixels", "external_pixels"):
             out["external_image"] = upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
         if self.obs_mode == "pixels":
@@ -356,6 +362,32 @@ def robosuite_base(env) -> RobosuiteEnv | None:
     while env is not None and not isinstance(env, RobosuiteEnv):
         env = getattr(env, "base_env", None)
     return env
+
+
+class SimulatorObject(Transform):
+    """Writes state mode's ``"object"`` vector (:meth:`RobosuiteEnv.object_observation`: cube position and
+    quaternion, the end effector's offset from the cube, Push's distance to the line) from the simulator into the
+    observations of a camera env, for diagnostics that read a camera run's episodes as a state run's; an agent reads
+    only its encoder's keys. Append it to the env: ``env.append_transform(SimulatorObject())``."""
+
+    def __init__(self):
+        super().__init__(in_keys=[], out_keys=["object"])
+
+    def _base(self) -> RobosuiteEnv:
+        base = robosuite_base(self.parent)
+        if base is None:
+            raise ValueError("SimulatorObject reads the simulator's cube and hand: it needs a robosuite env")
+        return base
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return next_tensordict.set("object", torch.as_tensor(self._base().object_observation()))
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec["object"] = self._base().object_spec()
+        return observation_spec
 
 
 def make_robosuite_env(
