@@ -125,32 +125,38 @@ def played_episodes(agent, episodes: int) -> list[TensorDict]:
 
 
 def plot_profiles(results: list[dict], out: str | Path) -> Path:
-    """One line per checkpoint (critic mean against the window's first step), the end-effector-to-cube distance of
-    the demonstrations dotted on a second axis where it was measured."""
+    """Two panels against the window's first step: the critic's mean (the demonstrations' end-effector-to-cube
+    distance dotted on a second axis where it was measured) and Q of the policy's action; one colour per checkpoint,
+    its own episodes dashed where they were played."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, (ax, ax_q) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for i, result in enumerate(results):
-        rows = result["profile"]
         name = Path(result["checkpoint"]).parent.parent.name + "/" + Path(result["checkpoint"]).name
-        ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="o", color=f"C{i}", label=name)
-        if "agent_profile" in result:
-            rows = result["agent_profile"]
-            ax.plot([r["step"] for r in rows], [r["critic_mean"] for r in rows], marker="x", ls="--", color=f"C{i}",
-                    label=f"{name}: its own episodes")
-    ax.set_xlabel(f"episode step (windows of {results[0]['window']}); dashed: the agent's own episodes")
-    ax.set_ylabel("raw critic r(z, z') (mean over episodes)")
-    ax.grid(alpha=0.3)
+        for key, style, label in (("profile", dict(marker="o"), name),
+                                  ("agent_profile", dict(marker="x", ls="--"), f"{name}: its own episodes")):
+            rows = result.get(key)
+            if not rows:
+                continue
+            steps = [r["step"] for r in rows]
+            ax.plot(steps, [r["critic_mean"] for r in rows], color=f"C{i}", label=label, **style)
+            if "q_mean" in rows[0]:
+                ax_q.plot(steps, [r["q_mean"] for r in rows], color=f"C{i}", **style)
+    ax_q.set_xlabel(f"episode step (windows of {results[0]['window']}); dashed: the agent's own episodes")
+    ax.set_ylabel("raw critic r(z, z')")
+    ax_q.set_ylabel("Q(z, policy action)")
+    for a in (ax, ax_q):
+        a.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")
     rows = results[0]["profile"]
     if "eef_to_cube_m" in rows[0]:
         twin = ax.twinx()
         twin.plot([r["step"] for r in rows], [100 * r["eef_to_cube_m"] for r in rows], ls=":", color="gray")
         twin.set_ylabel("end-effector to cube (cm, dotted)", color="gray")
-    ax.set_title(f"critic along {Path(results[0]['demos']).name}", fontsize=8)
+    ax.set_title(f"critic and value along {Path(results[0]['demos']).name} (means over episodes)", fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)
