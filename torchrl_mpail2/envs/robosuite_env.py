@@ -380,7 +380,8 @@ class SimulatorObject(Transform):
         return base
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return next_tensordict.set("object", torch.as_tensor(self._base().object_observation()))
+        base = self._base()
+        return next_tensordict.set("object", torch.as_tensor(base.object_observation(), device=base.device))
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._call(tensordict_reset)
