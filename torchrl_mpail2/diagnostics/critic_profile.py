@@ -111,10 +111,10 @@ def played_episodes(agent, episodes: int) -> list[TensorDict]:
     train = agent.run_config["train"]
     env = evaluation_env(train)
     keys = list(agent.modules.encoder.in_keys)
-    if train["env"].startswith("robosuite/") and "object" not in env.observation_spec.keys():
-        from torchrl_mpail2.envs.robosuite_env import SimulatorObject
+    if train["env"].startswith("robosuite/"):
+        from torchrl_mpail2.envs.robosuite_env import with_simulator_object
 
-        env = env.append_transform(SimulatorObject())
+        env = with_simulator_object(env)
     if "object" in env.observation_spec.keys() and "object" not in keys:
         keys.append("object")
     rollouts: list = []

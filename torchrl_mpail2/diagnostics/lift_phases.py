@@ -164,10 +164,9 @@ def play_lift_episodes(path: str | Path, episodes: int, planner_overrides: list[
         raise ValueError(f"{path}: lift_phases reads robosuite/Lift runs in 'state' or 'pixels' mode, this run is "
                          f"{train['env']} with obs {train['obs']!r}")
     env = evaluation_env(train)  # the run's own evaluation env (the same cube as its evaluations)
-    if train["obs"] == "pixels":
-        from torchrl_mpail2.envs.robosuite_env import SimulatorObject
+    from torchrl_mpail2.envs.robosuite_env import with_simulator_object
 
-        env = env.append_transform(SimulatorObject())
+    env = with_simulator_object(env)
     rollouts: list = []
     evaluate_episodes(env, agent.policy, evaluation_seeds(run_eval_seed(train), episodes), agent.planner,
                       rollouts=rollouts, acting=acting)

@@ -391,6 +391,14 @@ class SimulatorObject(Transform):
         return observation_spec
 
 
+def with_simulator_object(env):
+    """``env`` with :class:`SimulatorObject` appended where it is a robosuite env that does not observe
+    ``"object"`` (a camera env); any other env unchanged."""
+    if robosuite_base(env) is None or "object" in env.observation_spec.keys():
+        return env
+    return env.append_transform(SimulatorObject())
+
+
 def make_robosuite_env(
     task: str,
     obs: str = "state",
