@@ -65,3 +65,33 @@ def test_committed_expert_demonstrates_its_recorded_level_without_actions(env_id
     # every recorded evaluation episode scored >= 0.27 x its expert's mean (Ant 242 / 895); five random-action
     # episodes scored 5-54 (Hopper), -394 to -10 (Ant), 83-158 (Humanoid), below a quarter of each mean
     assert demos.header["episodes"][0]["task_return"] >= 0.25 * recorded["eval_mean_return"]
+
+
+def test_sac_run_resumes_from_its_checkpoint_where_it_stopped(tmp_path):
+    """A run stopped at 300 frames and resumed to 500 continues from the checkpoint's networks, optimiser, replay and
+    counters; other settings are refused, naming the field."""
+    from torchrl_mpail2.data.checkpoint import CheckpointError, read_checkpoint
+    from torchrl_mpail2.experts.sac import train_sac
+
+    out, run_dir = tmp_path / "Hopper-v5.pt", tmp_path / "run"
+    kwargs = dict(warmup=200, batch_size=32, eval_episodes=1, progress=False, save_every=100, run_dir=run_dir)
+    first = train_sac("Hopper-v5", frames=300, out=out, **kwargs)
+    saved = read_checkpoint(run_dir / "checkpoints" / "last")
+    assert saved["counters"]["frames"] == 300 and saved["launches"] == 1
+    assert len(saved["optim"]["state"]) > 0  # Adam's moments are kept, not only the weights
+    second = train_sac("Hopper-v5", frames=500, out=out, **kwargs)
+    assert second["frames"] == 500 and second["launches"] == 2
+    assert second["train_seconds"] > first["train_seconds"]  # the first launch's time is counted
+    resumed = read_checkpoint(run_dir / "checkpoints" / "last")
+    assert resumed["counters"]["frames"] == 500
+    # the resumed run kept training the saved networks: its parameters moved from the checkpoint's, and its
+    # episode returns extend the first launch's
+    assert resumed["episode_returns"][:len(saved["episode_returns"])] == saved["episode_returns"]
+    assert any(not torch.equal(resumed["loss"][k], v) for k, v in saved["loss"].items() if "qvalue" in k)
+    from torchrl_mpail2.data.checkpoint import load_replay
+    from torchrl_mpail2.experts.sac import SACRun
+    run = SACRun(make_env("gym/Hopper-v5", seed=0), 600, warmup=200)
+    load_replay(run.replay, run_dir / "checkpoints" / "last")
+    assert len(run.replay) == 500  # both launches' steps are in the stored buffer
+    with pytest.raises(CheckpointError, match="batch_size"):
+        train_sac("Hopper-v5", frames=600, out=out, **{**kwargs, "batch_size": 64})
