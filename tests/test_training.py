@@ -262,3 +262,20 @@ def test_resume_names_a_missing_or_broken_config_file(tmp_path):
     (tmp_path / "config.json").write_text("{not json")
     with pytest.raises(ValueError, match="config.json is not valid JSON"):
         MPAIL2Trainer.resume(tmp_path)
+
+
+def test_a_step_budget_ends_the_run_and_evaluations_record_env_steps(tmp_path):
+    """``train.total_env_steps`` ends the run after the episode that reaches it (the point mass's episodes are at most
+    100 steps), evaluates there, and every evaluation records the env steps done; a resume may raise the budget."""
+    small = ["train.num_demos=2", "train.warmup_episodes=1", "train.utd=0.05", "train.eval_episodes=1",
+             "planner.num_candidates=32", "planner.num_elites=4", "train.eval_every=2"]
+    run = tmp_path / "run"
+    summary = MPAIL2Trainer(_cfg(*small, "train.total_episodes=50", "train.total_env_steps=150"), run_dir=run).train()
+    assert 150 <= summary["env_steps"] < 250 and summary["episodes"] < 50, summary
+    evaluations = [json.loads(line) for line in (run / "eval.jsonl").read_text().splitlines()]
+    assert evaluations[-1]["episode"] == summary["episodes"] and evaluations[-1]["env_steps"] == summary["env_steps"]
+    assert all("env_steps" in e for e in evaluations)
+    resumed = MPAIL2Trainer.resume(run, ["train.total_env_steps=300"]).train()
+    assert 300 <= resumed["env_steps"] < 400 and resumed["episodes"] > summary["episodes"]
+    with pytest.raises(ConfigError, match="total_env_steps"):
+        _cfg("train.total_env_steps=0")

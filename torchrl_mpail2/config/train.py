@@ -18,7 +18,7 @@ EVAL_ACTINGS = ("deterministic", "random")
 DEFAULT_EVAL_SEED = 2_000_000
 
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
-RESUME_FIELDS = ("train.total_episodes", "train.max_wall_s", "train.progress", "train.threads", "train.checkpoint_every",
+RESUME_FIELDS = ("train.total_episodes", "train.total_env_steps", "train.max_wall_s", "train.progress", "train.threads", "train.checkpoint_every",
                  "train.ray_address")
 #: Who collects the training episodes (``TrainConfig.collector``): this process, or Ray workers.
 COLLECTORS = ("local", "ray")
@@ -54,6 +54,10 @@ class TrainConfig:
     ``model.reward_latent_keys``)."""
     total_episodes: int = 200
     """Training episodes (warm-up included)."""
+    total_env_steps: int | None = None
+    """A budget in environment steps as well (the Gymnasium tasks': the paper runs 200 iterations of 1000 steps):
+    the run ends after the episode that reaches it, or at ``total_episodes``, whichever comes first. None: episodes
+    alone."""
     warmup_episodes: int = 2
     """Episodes of uniformly random actions before learning starts."""
     num_envs: int = 1
@@ -154,7 +158,7 @@ class TrainConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "seed": NON_NEGATIVE, "num_demos": AT_LEAST_ONE, "num_envs": AT_LEAST_ONE, "total_episodes": AT_LEAST_ONE, "warmup_episodes": NON_NEGATIVE,
-        "ray_workers": AT_LEAST_ONE,
+        "total_env_steps": AT_LEAST_ONE, "ray_workers": AT_LEAST_ONE,
         "max_wall_s": POSITIVE, "utd": POSITIVE, "batch_size": AT_LEAST_ONE, "eval_every": NON_NEGATIVE,
         "eval_until": AT_LEAST_ONE,
         "eval_episodes": AT_LEAST_ONE, "eval_envs": AT_LEAST_ONE, "checkpoint_every": NON_NEGATIVE, "last_every": NON_NEGATIVE,

@@ -131,12 +131,20 @@ class RunCheckpoints:
         """Releases the run folder (the next :meth:`train` takes it again)."""
         self.run_folder.release()
 
+    def _budget_spent(self) -> bool:
+        """The run has played ``train.total_episodes`` or collected ``train.total_env_steps``."""
+        t = self.cfg.train
+        return self.counters["episodes"] >= t.total_episodes or (t.total_env_steps is not None
+                                                                 and self.counters["env_steps"] >= t.total_env_steps)
+
     def _finished_summary(self) -> dict | None:
-        """The stored summary of a run that has already done its ``total_episodes`` (None for one to go on)."""
-        t, done = self.cfg.train, self.counters["episodes"]
+        """The stored summary of a run that has already spent its budget (``total_episodes`` or ``total_env_steps``;
+        None for one to go on)."""
+        done, steps = self.counters["episodes"], self.counters["env_steps"]
         summary = self.run_dir / "summary.json"
-        if done < t.total_episodes or not summary.exists():
+        if not self._budget_spent() or not summary.exists():
             return None
-        warnings.warn(f"{self.run_dir} has already finished its {done} episodes: nothing to do. Extend it with "
-                      f"--resume {self.run_dir} train.total_episodes=N (N > {done})", RuntimeWarning, stacklevel=3)
+        warnings.warn(f"{self.run_dir} has already finished its {done} episodes ({steps} env steps): nothing to do. "
+                      f"Extend it with --resume {self.run_dir} train.total_episodes=N (N > {done}) or "
+                      f"train.total_env_steps=N (N > {steps})", RuntimeWarning, stacklevel=3)
         return json.loads(summary.read_text())

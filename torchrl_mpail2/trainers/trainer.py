@@ -111,6 +111,8 @@ class MPAIL2Trainer(RunCheckpoints):
         self.demo_buffer = DemoBuffer(self.demos, generator=torch.Generator().manual_seed(t.seed))
         # a batch of several episodes may step past total_episodes by up to one batch less one episode
         capacity = t.replay_size or (t.total_episodes + t.episodes_per_batch - 1) * episode_bound(self.env)
+        if not t.replay_size and t.total_env_steps is not None:  # the step budget, passed by at most one batch
+            capacity = min(capacity, t.total_env_steps + t.episodes_per_batch * episode_bound(self.env))
         replay = functools.partial(make_replay, capacity, t.batch_size, cfg.model.horizon, self.demo_buffer)
         self.replay = replay(self.run_dir / "replay_storage")
         self.latest = replay() if agent.switches.latest_episode_only else None
@@ -228,8 +230,8 @@ class MPAIL2Trainer(RunCheckpoints):
             return self._train_until(stop)
 
     def _train_until(self, stop: StopOnSignal) -> dict:
-        """Algorithm 1: interact, store, update; evaluate and checkpoint on schedule. It ends at ``total_episodes``,
-        at the wall-clock budget or at a stop signal (``stop``)."""
+        """Algorithm 1: interact, store, update; evaluate and checkpoint on schedule. It ends at ``total_episodes`` or
+        ``total_env_steps``, at the wall-clock budget or at a stop signal (``stop``)."""
         t, timer = self.cfg.train, self.timer
         bar = tqdm(total=t.total_episodes, initial=self.counters["episodes"], disable=not t.progress, desc="MPAIL2")
         start = self._launch_start = time.perf_counter()
@@ -238,7 +240,7 @@ class MPAIL2Trainer(RunCheckpoints):
         if t.eval_at_start and self.counters["episodes"] == 0 and not stop.requested:
             evaluation = self.logger.eval_at(0) or self._evaluate_and_checkpoint()  # the starting weights
         try:
-            while self.counters["episodes"] < t.total_episodes and not self._should_stop(stop, start):
+            while not self._budget_spent() and not self._should_stop(stop, start):
                 # interact using the planner (Algorithm 2), random actions for the warm-up episodes
                 self.agent.random_actions = self.counters["episodes"] < t.warmup_episodes
                 episodes, records, steps = self._collect(stream)
@@ -258,7 +260,7 @@ class MPAIL2Trainer(RunCheckpoints):
                 done, added = self.counters["episodes"], len(episodes)
                 periodic = crossed_multiple(done, added, t.eval_every) and (t.eval_until is None
                                                                             or done - added < t.eval_until)
-                if periodic or (evaluates_at_end and done >= t.total_episodes):
+                if periodic or (evaluates_at_end and self._budget_spent()):
                     evaluation = self._evaluate_and_checkpoint()
                 with timer("checkpoint"):
                     if crossed_multiple(done, added, t.checkpoint_every):
@@ -344,7 +346,7 @@ class MPAIL2Trainer(RunCheckpoints):
         self._eval_frames = []  # an evaluate() replaced by a caller films nothing
         with self.timer("evaluate"):
             evaluation = self.evaluate()
-        evaluation["episode"] = self.counters["episodes"]
+        evaluation["episode"], evaluation["env_steps"] = self.counters["episodes"], self.counters["env_steps"]
         self.logger.log_eval(evaluation)
         frames, self._eval_frames = self._eval_frames, []  # not held in memory until the next evaluation
         self.logger.log_videos(frames, [Path(p) for p in evaluation.get("videos", [])], self.counters["episodes"])
