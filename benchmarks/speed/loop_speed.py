@@ -40,7 +40,8 @@ def run_one(preset: str, threads: int, episodes: int, scratch: Path, extra: list
     proc = subprocess.run(cmd, cwd=scratch, env=child_env(threads), capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"training run {run_dir.name} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
-    return read_run(run_dir, preset)
+    # the run lived in a temporary folder, gone once the benchmark ends: its name alone, no machine path
+    return {**read_run(run_dir, preset), "run": run_dir.name}
 
 
 def read_run(run_dir: Path, preset: str | None = None) -> dict:
