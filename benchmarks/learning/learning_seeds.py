@@ -3,6 +3,7 @@
     python -m benchmarks.learning.learning_seeds NAME --preset lift_state --seeds 0 1 --episodes 300 --budget-min 100 \\
         [section.field=value ...]
     python -m benchmarks.learning.learning_seeds NAME --summarize           # rewrite the results from the run folders
+    python -m benchmarks.learning.run_status [NAME ...]                     # where each seed stands (running, resumable...)
     python -m benchmarks.learning.learning_seeds --compare NAME [NAME ...] --out docs/results/learning/compare.png
     python -m benchmarks.learning.learning_seeds NAME --merge SOURCE [SOURCE ...]  # one result from several results' seeds
     python -m benchmarks.learning.learning_seeds NAME --preset push_state train.env=robosuite/PushMirrored \\
