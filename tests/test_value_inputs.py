@@ -31,3 +31,18 @@ def test_one_state_cannot_be_shuffled():
     agent = _agent()
     with pytest.raises(ValueError, match="at least 2 states"):
         value_input_importance(agent, TensorDict({"arm": torch.zeros(1, 3), "cube": torch.zeros(1, 3)}, [1]))
+
+
+def test_the_reward_importance_shuffles_both_ends_of_each_transition_alike():
+    from torchrl_mpail2.diagnostics.value_inputs import reward_input_importance
+
+    agent = _agent()
+    arm = torch.rand(65, 3) * 2 - 1
+    states = TensorDict({"arm": arm, "cube": torch.full((65, 3), -0.2)}, [65])
+    result = reward_input_importance(agent, states[:-1], states[1:], permutations=3)
+    assert result["transitions"] == 64 and result["reward_importance"]["cube"] == 0.0
+    assert result["reward_importance"]["arm"] > 0
+    # a key equal at both ends of every transition but varying across them: shuffled alike, each pair stays equal
+    same = TensorDict({"arm": arm[:-1], "cube": torch.rand(64, 3)}, [64])
+    moved = TensorDict({"arm": arm[1:], "cube": same["cube"].clone()}, [64])
+    assert reward_input_importance(agent, same, moved, permutations=2)["reward_importance"]["cube"] > 0

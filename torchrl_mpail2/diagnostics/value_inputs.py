@@ -1,4 +1,5 @@
-r"""Which observation keys does the value :math:`Q_\zeta(z, \pi_\phi(z))` read? Permutation importance over states.
+r"""Which observation keys do the value :math:`Q_\zeta(z, \pi_\phi(z))` and the reward :math:`r_\theta(z, z')` read?
+Permutation importance over states.
 
     python -m torchrl_mpail2.diagnostics value_inputs CKPT [--resets 100] [--episodes 2] [--permutations 5] [--out FILE]
 
@@ -8,8 +9,9 @@ change of Q over states and shuffles, beside ``q_spread``, the standard deviatio
 At a robosuite task's initial states (``--resets``, held-out evaluation seeds) the arm starts at nearly the same pose
 and the cube is placed anew: a value that sees the cube changes when the cameras are shuffled, one that reads the arm
 alone changes with the proprioception only. ``--episodes`` adds the states of episodes the checkpoint's agent plays
-(the plan's mean). The planner ranks plans by their terminal Q, so a value blind to the cube ranks plans by the arm's
-pose alone.
+(the plan's mean), and over their transitions the same for the reward (``reward_importance``: a key shuffled across
+the transitions, the same shuffle for both ends of each, beside ``reward_spread``). The planner ranks plans by their
+rewards and terminal Q, so a value or a reward blind to the cube ranks plans by the arm's pose alone.
 """
 from __future__ import annotations
 
@@ -31,6 +33,35 @@ def q_of_policy_action(agent, observations: TensorDictBase) -> torch.Tensor:
         z = m.encoder.encode(observations)
         plan, _ = m.policy.net(z, deterministic=True)
         return m.value.net(z, plan[:, 0]).float().mean(0).squeeze(-1)
+
+
+def reward_of_transitions(agent, observations: TensorDictBase, next_observations: TensorDictBase) -> torch.Tensor:
+    """``r(z, z')`` of each transition ``[N]``."""
+    m = agent.modules
+    with torch.no_grad():
+        return m.reward.module(m.encoder.encode(observations), m.encoder.encode(next_observations)).float().squeeze(-1)
+
+
+def reward_input_importance(agent, observations: TensorDictBase, next_observations: TensorDictBase,
+                            permutations: int = PERMUTATIONS, seed: int = 0) -> dict:
+    """Permutation importance of each observation key for the reward over the transitions
+    ``(observations[i], next_observations[i])``: a key shuffled across transitions, both ends alike."""
+    if observations.batch_size[0] < 2:
+        raise ValueError("value_inputs needs at least 2 transitions to shuffle a key across")
+    generator = torch.Generator().manual_seed(seed)
+    r = reward_of_transitions(agent, observations, next_observations)
+    importance = {}
+    for key in agent.modules.encoder.in_keys:
+        changes = []
+        for _ in range(permutations):
+            order = torch.randperm(len(r), generator=generator)
+            now, then = observations.clone(), next_observations.clone()
+            now.set(key, observations[key][order])
+            then.set(key, next_observations[key][order])
+            changes.append((reward_of_transitions(agent, now, then) - r).abs().mean())
+        importance[key] = float(torch.stack(changes).mean())
+    return {"transitions": int(len(r)), "reward_mean": float(r.mean()), "reward_spread": float(r.std()),
+            "reward_importance": importance}
 
 
 def value_input_importance(agent, observations: TensorDictBase, permutations: int = PERMUTATIONS,
@@ -85,8 +116,11 @@ def main(argv: list[str] | None = None) -> dict:
             states, _ = visited_states(agent, env, seeds, play=False)
             result["at_reset"] = value_input_importance(agent, states, args.permutations)
         if args.episodes:
-            states, _ = visited_states(agent, env, evaluation_seeds(run_eval_seed(train), args.episodes))
-            result["played"] = value_input_importance(agent, states, args.permutations)
+            episodes = [visited_states(agent, env, [seed])[0]
+                        for seed in evaluation_seeds(run_eval_seed(train), args.episodes)]
+            result["played"] = value_input_importance(agent, torch.cat(episodes), args.permutations)
+            result["played"].update(reward_input_importance(agent, torch.cat([e[:-1] for e in episodes]),
+                                                            torch.cat([e[1:] for e in episodes]), args.permutations))
     finally:
         env.close()
     if args.out is not None:
