@@ -18,8 +18,8 @@ EVAL_ACTINGS = ("deterministic", "random")
 DEFAULT_EVAL_SEED = 2_000_000
 
 #: Fields that an override may change when a run is resumed (the rest is what the run was started with).
-RESUME_FIELDS = ("train.total_episodes", "train.total_env_steps", "train.max_wall_s", "train.progress", "train.threads", "train.checkpoint_every",
-                 "train.ray_address")
+RESUME_FIELDS = ("train.total_episodes", "train.total_env_steps", "train.max_wall_s", "train.progress", "train.threads",
+                 "train.checkpoint_every", "train.ray_address")
 #: Who collects the training episodes (``TrainConfig.collector``): this process, or Ray workers.
 COLLECTORS = ("local", "ray")
 
