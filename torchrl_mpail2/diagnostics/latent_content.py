@@ -90,45 +90,72 @@ def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch
     return out
 
 
-def main(argv: list[str] | None = None) -> dict:
-    from torchrl_mpail2.agents import MPAIL2Agent
+def add_state_set_arguments(p: argparse.ArgumentParser, resets: int, episodes: int) -> None:
+    """The checkpoint, ``--resets``, ``--episodes`` and ``--out`` arguments of a diagnostic over :func:`state_sets`."""
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--resets", type=int, default=resets, help="initial states of held-out evaluation seeds")
+    p.add_argument("--episodes", type=int, default=episodes, help="episodes played by the checkpoint's agent")
+    p.add_argument("--out", type=Path, default=None, help="also write the result to this JSON file")
+
+
+def state_sets(agent, resets: int, episodes: int) -> tuple[tuple | None, list[tuple]]:
+    """In the checkpoint's own evaluation env: the initial states of ``resets`` held-out evaluation seeds (one
+    :func:`visited_states` set, None for 0), and each of its first ``episodes`` fixed evaluation episodes played by
+    the agent (one set per episode).
+
+    Raises:
+        SystemExit: a negative count, or both 0.
+    """
     from torchrl_mpail2.trainers.evaluation import (
         HELD_OUT_SEED_OFFSET, evaluation_env, evaluation_seeds, run_eval_seed,
     )
 
+    if min(episodes, resets) < 0 or episodes + resets == 0:
+        raise SystemExit("--episodes and --resets must be >= 0, one of them > 0")
+    train = agent.run_config["train"]
+    env = evaluation_env(train)
+    try:
+        at_reset = None
+        if resets:
+            seeds = evaluation_seeds(run_eval_seed(train) + HELD_OUT_SEED_OFFSET, resets)
+            at_reset = visited_states(agent, env, seeds, play=False)
+        played = [visited_states(agent, env, [seed]) for seed in evaluation_seeds(run_eval_seed(train), episodes)]
+    finally:
+        env.close()
+    return at_reset, played
+
+
+def write_result(result: dict, out: Path | None) -> dict:
+    """Prints ``result`` as JSON, and writes it to ``out`` when given."""
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=2))
+    print(json.dumps(result, indent=2))
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    from torchrl_mpail2.agents import MPAIL2Agent
+
     p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics latent_content", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--resets", type=int, default=200, help="initial states of held-out evaluation seeds")
-    p.add_argument("--episodes", type=int, default=3, help="episodes played by the checkpoint's agent")
+    add_state_set_arguments(p, resets=200, episodes=3)
     p.add_argument("--untrained", action="store_true",
                    help="re-initialise the encoder's weights first (its observation normalisation kept): what the "
                         "same architecture reads before training, to compare with")
-    p.add_argument("--out", type=Path, default=None, help="also write the result to this JSON file")
     args = p.parse_args(argv)
-    if min(args.episodes, args.resets) < 0 or args.episodes + args.resets == 0:
-        raise SystemExit("--episodes and --resets must be >= 0, one of them > 0")
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
     if args.untrained:
         torch.manual_seed(0)
         for module in agent.modules.encoder.modules():
             if hasattr(module, "reset_parameters"):
                 module.reset_parameters()
-    train = agent.run_config["train"]
-    env = evaluation_env(train)
+    at_reset, played = state_sets(agent, args.resets, args.episodes)
     result = {"checkpoint": str(args.checkpoint), "untrained_encoder": args.untrained, "episodes": args.episodes,
               "resets": args.resets}
-    try:
-        if args.resets:
-            seeds = evaluation_seeds(run_eval_seed(train) + HELD_OUT_SEED_OFFSET, args.resets)
-            result["at_reset"] = latent_content(agent, *visited_states(agent, env, seeds, play=False))
-        if args.episodes:
-            seeds = evaluation_seeds(run_eval_seed(train), args.episodes)
-            result["played"] = latent_content(agent, *visited_states(agent, env, seeds))
-    finally:
-        env.close()
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=2))
-    print(json.dumps(result, indent=2))
-    return result
+    if at_reset is not None:
+        result["at_reset"] = latent_content(agent, *at_reset)
+    if played:
+        result["played"] = latent_content(agent, torch.cat([o for o, _ in played]),
+                                          {key: torch.cat([t[key] for _, t in played]) for key in TARGETS})
+    return write_result(result, args.out)

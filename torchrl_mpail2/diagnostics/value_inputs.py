@@ -16,8 +16,6 @@ rewards and terminal Q, so a value or a reward blind to the cube ranks plans by 
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
@@ -87,44 +85,27 @@ def value_input_importance(agent, observations: TensorDictBase, permutations: in
 
 def main(argv: list[str] | None = None) -> dict:
     from torchrl_mpail2.agents import MPAIL2Agent
-    from torchrl_mpail2.diagnostics.latent_content import visited_states
-    from torchrl_mpail2.trainers.evaluation import (
-        HELD_OUT_SEED_OFFSET, evaluation_env, evaluation_seeds, run_eval_seed,
-    )
+    from torchrl_mpail2.diagnostics.latent_content import add_state_set_arguments, state_sets, write_result
 
     p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics value_inputs", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--resets", type=int, default=100, help="initial states of held-out evaluation seeds")
-    p.add_argument("--episodes", type=int, default=2, help="episodes played by the checkpoint's agent")
+    add_state_set_arguments(p, resets=100, episodes=2)
     p.add_argument("--permutations", type=int, default=PERMUTATIONS, help="shuffles per key")
     p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--out", type=Path, default=None, help="also write the result to this JSON file")
     args = p.parse_args(argv)
-    if min(args.episodes, args.resets) < 0 or args.episodes + args.resets == 0 or args.permutations < 1:
-        raise SystemExit("--episodes and --resets must be >= 0, one of them > 0; --permutations >= 1")
+    if args.permutations < 1:
+        raise SystemExit("--permutations must be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
     agent = MPAIL2Agent.from_checkpoint(args.checkpoint)
-    train = agent.run_config["train"]
-    env = evaluation_env(train)
+    at_reset, played = state_sets(agent, args.resets, args.episodes)
     result = {"checkpoint": str(args.checkpoint), "resets": args.resets, "episodes": args.episodes,
               "permutations": args.permutations}
-    try:
-        if args.resets:
-            seeds = evaluation_seeds(run_eval_seed(train) + HELD_OUT_SEED_OFFSET, args.resets)
-            states, _ = visited_states(agent, env, seeds, play=False)
-            result["at_reset"] = value_input_importance(agent, states, args.permutations)
-        if args.episodes:
-            episodes = [visited_states(agent, env, [seed])[0]
-                        for seed in evaluation_seeds(run_eval_seed(train), args.episodes)]
-            result["played"] = value_input_importance(agent, torch.cat(episodes), args.permutations)
-            result["played"].update(reward_input_importance(agent, torch.cat([e[:-1] for e in episodes]),
-                                                            torch.cat([e[1:] for e in episodes]), args.permutations))
-    finally:
-        env.close()
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=2))
-    print(json.dumps(result, indent=2))
-    return result
+    if at_reset is not None:
+        result["at_reset"] = value_input_importance(agent, at_reset[0], args.permutations)
+    if played:
+        episodes = [observations for observations, _ in played]
+        result["played"] = value_input_importance(agent, torch.cat(episodes), args.permutations)
+        result["played"].update(reward_input_importance(agent, torch.cat([e[:-1] for e in episodes]),
+                                                        torch.cat([e[1:] for e in episodes]), args.permutations))
+    return write_result(result, args.out)
