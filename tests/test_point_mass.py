@@ -107,12 +107,12 @@ def test_seeded_resets_are_reproducible():
 
 
 def test_get_expert(tmp_path, monkeypatch):
-    import torchrl_mpail2.experts.sac as sac
+    import torchrl_mpail2.experts.gym as gym_experts
 
     env = make_env("point_mass")
     assert isinstance(get_expert("point_mass", env), PointMassExpert)
-    monkeypatch.setattr(sac, "ASSET_DIR", tmp_path)  # no weights there
-    with pytest.raises(FileNotFoundError, match="python -m torchrl_mpail2.experts.sac --env Hopper-v5"):
+    monkeypatch.setattr(gym_experts, "ASSET_DIR", tmp_path)  # no weights there
+    with pytest.raises(FileNotFoundError, match="python -m torchrl_mpail2.experts.ppo --env Hopper-v5"):
         get_expert("gym/Hopper-v5", env)
 
 

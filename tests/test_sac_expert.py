@@ -2,7 +2,8 @@ import pytest
 import torch
 
 from torchrl_mpail2.envs import make_env
-from torchrl_mpail2.experts.sac import SACExpert, make_actor
+from torchrl_mpail2.experts.gym import GymExpert
+from torchrl_mpail2.experts.sac import make_actor
 
 
 def test_sac_expert_round_trips_weights_and_acts_deterministically(tmp_path):
@@ -12,9 +13,11 @@ def test_sac_expert_round_trips_weights_and_acts_deterministically(tmp_path):
     with torch.no_grad():
         actor(td.clone())
     path = tmp_path / "Hopper-v5.pt"
+    # a file from before PPO experts: no "kind", read as SAC's
     torch.save({"env": "Hopper-v5", "obs_dim": 11, "hidden": (256, 256), "actor": actor.state_dict(),
                 "summary": {"eval_mean_return": 1.0}}, path)
-    expert = SACExpert(path, env.action_spec)
+    expert = GymExpert(path, env.action_spec)
+    assert expert.kind == "sac"
     a1, a2 = expert(td.clone())["action"], expert(td.clone())["action"]
     assert torch.equal(a1, a2) and a1.shape == (3,) and a1.abs().max() <= 1
     # the loaded actor's mean action equals the original's
@@ -27,7 +30,8 @@ def test_sac_expert_round_trips_weights_and_acts_deterministically(tmp_path):
 def test_sac_trainer_runs_saves_periodically_and_evaluates(tmp_path):
     import json
 
-    from torchrl_mpail2.experts.sac import evaluate_saved, train_sac
+    from torchrl_mpail2.experts.gym import evaluate_saved
+    from torchrl_mpail2.experts.sac import train_sac
 
     out = tmp_path / "Hopper-v5.pt"
     summary = train_sac("Hopper-v5", frames=300, out=out, warmup=200, batch_size=32, eval_episodes=1, progress=False,
@@ -43,7 +47,7 @@ def test_sac_trainer_runs_saves_periodically_and_evaluates(tmp_path):
 
 
 def _committed_experts():
-    from torchrl_mpail2.experts.sac import ASSET_DIR
+    from torchrl_mpail2.experts.gym import ASSET_DIR
     return sorted(p.stem for p in ASSET_DIR.glob("*.pt"))
 
 
@@ -53,7 +57,7 @@ def test_committed_expert_demonstrates_its_recorded_level_without_actions(env_id
 
     from torchrl_mpail2.data import load_demos, record_demos
     from torchrl_mpail2.experts import get_expert
-    from torchrl_mpail2.experts.sac import ASSET_DIR
+    from torchrl_mpail2.experts.gym import ASSET_DIR
 
     recorded = json.loads((ASSET_DIR / f"{env_id}.json").read_text())
     assert "eval_mean_return" in recorded, f"{env_id}: the committed expert has no recorded evaluation"

@@ -206,12 +206,13 @@ def numbered_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
                   for path in (Path(run_dir) / "checkpoints").glob("episode_*") if path.is_dir())
 
 
-def find_resumable(checkpoints: Path) -> Path | None:
+def find_resumable(checkpoints: Path, replay: bool = True) -> Path | None:
     """The newest complete checkpoint under ``checkpoints`` (``last``, numbered ones, or ones a crash left mid-rename).
 
     Every candidate is checked against its manifest; those holding the replay buffer are preferred (a resume
     without it would start from an empty buffer), then the most episodes, then ``last``. Falling back to
-    another folder than ``last`` warns with the reason.
+    another folder than ``last`` warns with the reason, and so does one without a replay buffer unless
+    ``replay=False`` (a run that keeps none, e.g. an on-policy one).
 
     Returns:
         The folder, or None when there is no checkpoint at all.
@@ -238,7 +239,7 @@ def find_resumable(checkpoints: Path) -> Path | None:
     if chosen.name != "last" or problems:
         reasons = "; ".join(problems) or f"{checkpoints / 'last'} is missing"
         warnings.warn(f"resuming from {chosen} (episode {episodes}): {reasons}", RuntimeWarning, stacklevel=2)
-    if not with_replay:
+    if replay and not with_replay:
         warnings.warn(f"{chosen} holds no replay buffer: the resumed run starts with an empty one", RuntimeWarning,
                       stacklevel=2)
     return chosen

@@ -24,7 +24,7 @@ def get_expert(env_name: str, env: EnvBase, **expert_kwargs):
             :class:`~torchrl_mpail2.experts.scripted.LiftExpert`); other experts take none.
 
     Raises:
-        FileNotFoundError: for a gym task whose SAC expert weights are not in ``torchrl_mpail2/assets/experts``.
+        FileNotFoundError: for a gym task whose expert weights are not in ``torchrl_mpail2/assets/experts``.
         ValueError: for an unknown env name.
 
     Examples:
@@ -45,8 +45,8 @@ def get_expert(env_name: str, env: EnvBase, **expert_kwargs):
         expert_cls = scripted.LiftExpert if env_name == "robosuite/Lift" else scripted.PushExpert
         return expert_cls(env, **expert_kwargs)
     if env_name.startswith("gym/"):
-        from torchrl_mpail2.experts.sac import ASSET_DIR, SACExpert
+        from torchrl_mpail2.experts.gym import ASSET_DIR, GymExpert
 
-        # committed weights of the SAC expert (FileNotFoundError with the training command if absent)
-        return SACExpert(ASSET_DIR / f"{env_name.removeprefix('gym/')}.pt", env.action_spec)
+        # committed weights of the expert (FileNotFoundError with the training command if absent)
+        return GymExpert(ASSET_DIR / f"{env_name.removeprefix('gym/')}.pt", env.action_spec)
     raise ValueError(f"No expert for env {env_name!r}.")
