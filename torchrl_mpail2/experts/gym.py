@@ -16,9 +16,10 @@ from typing import Callable
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
 
 from torchrl_mpail2.data.checkpoint import (CheckpointError, find_resumable, has_replay, load_replay,
-                                             read_checkpoint, write_checkpoint)
+                                             read_checkpoint, rng_state, set_rng_state, write_checkpoint)
 
 ASSET_DIR = Path(__file__).resolve().parents[1] / "assets" / "experts"
 #: The kinds of expert and whether a run of each keeps a replay buffer in its checkpoints.
@@ -103,6 +104,70 @@ def evaluate_saved(env_id: str, path: Path, episodes: int = 10, seed: int = 0) -
                "eval_episodes": episodes}
     save_expert(path, env_id, expert.kind, expert.obs_dim, expert.actor, summary)
     return summary
+
+
+class ExpertRun:
+    """What a SAC and a PPO expert run share: ``env``, ``policy``, ``loss``, ``optim``, ``replay`` (or ``None``),
+    the frame counter and finished episodes' returns, their state dict and the collection loop. Subclasses set
+    those in ``__init__`` and define :meth:`make_collector` and :meth:`train_on`."""
+
+    env = policy = loss = optim = replay = None
+    frames: int = 0
+    episode_returns: list[float]
+
+    def make_collector(self, frames: int):
+        """A TorchRL collector over at least ``frames`` more env steps."""
+        raise NotImplementedError
+
+    def train_on(self, batch: TensorDictBase) -> None:
+        """Takes in one collected batch (and counts its frames)."""
+        raise NotImplementedError
+
+    def state_dict(self) -> dict:
+        """Policy, loss (networks, targets), optimiser, counters, episode returns and RNG states (a replay buffer
+        is written beside it by :func:`~torchrl_mpail2.data.checkpoint.write_checkpoint`)."""
+        return {"policy": self.policy.state_dict(), "loss": self.loss.state_dict(), "optim": self.optim.state_dict(),
+                "counters": {"frames": self.frames, "episodes": len(self.episode_returns)},
+                "episode_returns": list(self.episode_returns), "rng": rng_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.policy.load_state_dict(state["policy"] if "policy" in state else state["actor"])  # "actor": older SAC runs
+        self.optim.load_state_dict(state["optim"])
+        self.frames = int(state["counters"]["frames"])
+        self.episode_returns = list(state["episode_returns"])
+        set_rng_state(state["rng"])
+
+    def fit(self, frames: int, *, progress: bool = True, desc: str = "expert", on_frames=None):
+        """Collects and trains until ``frames`` env steps in all (counting those before a resume).
+
+        Keyword Args:
+            on_frames (callable, optional): ``on_frames(self, recent_returns)`` after each collected batch
+                (``recent_returns``: the last 10 finished episodes' summed task rewards).
+
+        Returns:
+            the trained policy (stochastic; act with ``ExplorationType.DETERMINISTIC`` for its mean).
+        """
+        left = frames - self.frames
+        if left <= 0:
+            return self.policy
+        collector = self.make_collector(left)
+        bar = tqdm(total=frames, initial=self.frames, disable=not progress, desc=desc)
+        try:
+            for batch in collector:
+                self.train_on(batch)
+                ended = batch["next", "done"].squeeze(-1)
+                self.episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
+                bar.update(batch.numel())
+                recent = self.episode_returns[-10:]
+                if recent:
+                    bar.set_postfix(ret=f"{sum(recent) / len(recent):.1f}")
+                if on_frames is not None:
+                    on_frames(self, recent)
+        finally:
+            bar.close()
+            collector.shutdown()
+        return self.policy
 
 
 def check_settings(saved: dict, current: dict, checkpoint: Path) -> None:

@@ -32,12 +32,10 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm.auto import tqdm
 
-from torchrl_mpail2.data.checkpoint import rng_state, set_rng_state
 from torchrl_mpail2.envs.gym_env import make_gym_env
 from torchrl_mpail2.envs.keys import with_bookkeeping
-from torchrl_mpail2.experts.gym import add_expert_arguments, expert_cli, train_expert
+from torchrl_mpail2.experts.gym import ExpertRun, add_expert_arguments, expert_cli, train_expert
 
 #: Settings a PPO expert run keeps across resumes (a resumed run refuses others, naming the field).
 PPO_SETTINGS = {"hidden": [64, 64], "gamma": 0.99, "lmbda": 0.95, "clip_epsilon": 0.2, "lr": 3e-4,
@@ -118,7 +116,7 @@ def make_policy(obs_dim: int, action_spec, settings: dict = PPO_SETTINGS) -> Ten
     return TensorDictSequential(normalizer, actor)
 
 
-class PPORun:
+class PPORun(ExpertRun):
     """TorchRL's ``ClipPPOLoss`` and ``GAE`` with the normalisers, optimiser and counters of an expert run.
 
     Args:
@@ -148,51 +146,19 @@ class PPORun:
         self.frames, self.episode_returns = 0, []
 
     def state_dict(self) -> dict:
-        return {"policy": self.policy.state_dict(), "loss": self.loss.state_dict(), "optim": self.optim.state_dict(),
-                "returns_stats": self.returns_stats.state_dict(), "discounted_return": self.discounted_return.clone(),
-                "counters": {"frames": self.frames, "episodes": len(self.episode_returns)},
-                "episode_returns": list(self.episode_returns), "rng": rng_state()}
+        return {**super().state_dict(), "returns_stats": self.returns_stats.state_dict(),
+                "discounted_return": self.discounted_return.clone()}
 
     def load_state_dict(self, state: dict) -> None:
-        self.policy.load_state_dict(state["policy"])
-        self.loss.load_state_dict(state["loss"])
-        self.optim.load_state_dict(state["optim"])
+        super().load_state_dict(state)
         self.returns_stats.load_state_dict(state["returns_stats"])
         self.discounted_return.copy_(state["discounted_return"])
-        self.frames = int(state["counters"]["frames"])
-        self.episode_returns = list(state["episode_returns"])
-        set_rng_state(state["rng"])
 
-    def fit(self, frames: int, *, progress: bool = True, desc: str = "PPO", on_frames=None) -> TensorDictSequential:
-        """Collects batches of ``frames_per_batch`` steps and trains on each until ``frames`` in all (counting
-        those before a resume; the last batch may overshoot to a whole batch).
-
-        Keyword Args:
-            on_frames (callable, optional): ``on_frames(self, recent_returns)`` after each batch (the last 10
-                finished episodes' summed task rewards).
-        """
+    def make_collector(self, frames: int) -> Collector:
+        """Whole batches of ``frames_per_batch`` steps (the last may overshoot ``frames``)."""
         per_batch = self.settings["frames_per_batch"]
-        left = frames - self.frames
-        if left <= 0:
-            return self.policy
-        collector = Collector(self.env, self.policy, frames_per_batch=per_batch,
-                              total_frames=per_batch * math.ceil(left / per_batch))
-        bar = tqdm(total=frames, initial=self.frames, disable=not progress, desc=desc)
-        try:
-            for batch in collector:
-                self.train_on(batch)
-                ended = batch["next", "done"].squeeze(-1)
-                self.episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
-                bar.update(batch.numel())
-                recent = self.episode_returns[-10:]
-                if recent:
-                    bar.set_postfix(ret=f"{sum(recent) / len(recent):.1f}")
-                if on_frames is not None:
-                    on_frames(self, recent)
-        finally:
-            bar.close()
-            collector.shutdown()
-        return self.policy
+        return Collector(self.env, self.policy, frames_per_batch=per_batch,
+                         total_frames=per_batch * math.ceil(frames / per_batch))
 
     def scale_rewards(self, reward: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
         """Divides ``reward [E, T, 1]`` by the running standard deviation of the discounted return (updated with

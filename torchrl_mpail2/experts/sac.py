@@ -25,10 +25,8 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
-from tqdm.auto import tqdm
 
-from torchrl_mpail2.data.checkpoint import rng_state, set_rng_state
-from torchrl_mpail2.experts.gym import add_expert_arguments, expert_cli, train_expert
+from torchrl_mpail2.experts.gym import ExpertRun, add_expert_arguments, expert_cli, train_expert
 HIDDEN = (256, 256)
 
 
@@ -47,7 +45,7 @@ SAC_SETTINGS = {"hidden": list(HIDDEN), "gamma": 0.99, "tau": 0.005, "lr": 3e-4,
                 "num_qvalue_nets": 2, "frames_per_batch": 1000}
 
 
-class SACRun:
+class SACRun(ExpertRun):
     """TorchRL's ``SACLoss`` (two Q nets, auto alpha, UTD 1) with its optimiser, target update, replay buffer and
     counters: what :func:`fit_sac` trains and what an expert run's checkpoint holds (``policy`` is the actor).
 
@@ -68,13 +66,13 @@ class SACRun:
             raise KeyError(f"fit_sac: the env has no reward {reward_key!r}; its rewards: {list(env.reward_keys)}")
         self.env, self.warmup = env, warmup
         obs_dim = env.observation_spec["observation"].shape[-1]
-        self.actor = make_actor(obs_dim, env.action_spec)
+        self.policy = make_actor(obs_dim, env.action_spec)
         qnet = MLP(in_features=obs_dim + env.action_spec.shape[-1], out_features=1, num_cells=list(HIDDEN),
                    activation_class=nn.ReLU)
         qvalue = ValueOperator(qnet, in_keys=["observation", "action"])
         with torch.no_grad():
-            self.actor(env.reset())
-        self.loss = SACLoss(self.actor, qvalue, num_qvalue_nets=SAC_SETTINGS["num_qvalue_nets"], loss_function="l2",
+            self.policy(env.reset())
+        self.loss = SACLoss(self.policy, qvalue, num_qvalue_nets=SAC_SETTINGS["num_qvalue_nets"], loss_function="l2",
                             delay_qvalue=True, alpha_init=SAC_SETTINGS["alpha_init"])
         self.loss.set_keys(reward=reward_key)
         self.loss.make_value_estimator(gamma=SAC_SETTINGS["gamma"])
@@ -83,62 +81,18 @@ class SACRun:
         self.replay = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity), batch_size=batch_size)
         self.frames, self.episode_returns = 0, []
 
-    @property
-    def policy(self) -> ProbabilisticActor:
-        return self.actor
+    def make_collector(self, frames: int) -> Collector:
+        """Batches of up to ``frames_per_batch`` steps, at random until ``warmup`` steps are stored."""
+        return Collector(self.env, self.policy, frames_per_batch=min(SAC_SETTINGS["frames_per_batch"], frames),
+                         total_frames=frames, init_random_frames=max(0, self.warmup - self.frames))
 
-    def state_dict(self) -> dict:
-        """Networks, targets, ``log_alpha``, optimiser, counters, episode returns and RNG states (the replay buffer
-        is written beside it by :func:`~torchrl_mpail2.data.checkpoint.write_checkpoint`)."""
-        return {"actor": self.actor.state_dict(), "loss": self.loss.state_dict(), "optim": self.optim.state_dict(),
-                "counters": {"frames": self.frames, "episodes": len(self.episode_returns)},
-                "episode_returns": list(self.episode_returns), "rng": rng_state()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.loss.load_state_dict(state["loss"])
-        self.actor.load_state_dict(state["actor"])
-        self.optim.load_state_dict(state["optim"])
-        self.frames = int(state["counters"]["frames"])
-        self.episode_returns = list(state["episode_returns"])
-        set_rng_state(state["rng"])
-
-    def fit(self, frames: int, *, progress: bool = True, desc: str = "SAC", on_frames=None) -> ProbabilisticActor:
-        """Collects and trains until ``frames`` environment steps in all (counting those done before a resume);
-        one update per collected step once ``warmup`` steps are stored.
-
-        Keyword Args:
-            on_frames (callable, optional): ``on_frames(self, recent_returns)`` after each collected batch
-                (``recent_returns``: the last 10 finished episodes' summed task rewards).
-
-        Returns:
-            the trained actor (stochastic; act with ``ExplorationType.DETERMINISTIC`` for its mean).
-        """
-        left = frames - self.frames
-        if left <= 0:
-            return self.actor
-        per_batch = min(SAC_SETTINGS["frames_per_batch"], left)
-        collector = Collector(self.env, self.actor, frames_per_batch=per_batch, total_frames=left,
-                              init_random_frames=max(0, self.warmup - self.frames))
-        bar = tqdm(total=frames, initial=self.frames, disable=not progress, desc=desc)
-        try:
-            for batch in collector:
-                self.replay.extend(batch.reshape(-1))
-                self.frames += batch.numel()
-                ended = batch["next", "done"].squeeze(-1)
-                self.episode_returns += batch["next", "episode_task_return"][ended].flatten().tolist()
-                if self.frames >= self.warmup:
-                    for _ in range(batch.numel()):
-                        self.update()
-                bar.update(batch.numel())
-                recent = self.episode_returns[-10:]
-                if recent:
-                    bar.set_postfix(ret=f"{sum(recent) / len(recent):.1f}")
-                if on_frames is not None:
-                    on_frames(self, recent)
-        finally:
-            bar.close()
-            collector.shutdown()
-        return self.actor
+    def train_on(self, batch) -> None:
+        """Stores the batch, then one update per collected step once ``warmup`` steps are stored."""
+        self.replay.extend(batch.reshape(-1))
+        self.frames += batch.numel()
+        if self.frames >= self.warmup:
+            for _ in range(batch.numel()):
+                self.update()
 
     def update(self) -> None:
         losses = self.loss(self.replay.sample())
@@ -159,7 +113,7 @@ def fit_sac(env, frames: int, *, reward_key: str = "task_reward", warmup: int = 
             batch (``recent_returns``: the last 10 finished episodes' summed task rewards).
     """
     run = SACRun(env, frames, reward_key=reward_key, batch_size=batch_size, warmup=warmup)
-    hook = None if on_frames is None else (lambda r, recent: on_frames(r.actor, r.frames, recent))
+    hook = None if on_frames is None else (lambda r, recent: on_frames(r.policy, r.frames, recent))
     return run.fit(frames, progress=progress, desc=desc, on_frames=hook)
 
 
