@@ -357,3 +357,19 @@ def test_a_runs_cached_demos_record_the_env_options_not_the_experts():
     demos = run_demos.load_or_record_demos(cfg, env, lambda seed=0: make_env("point_mass", seed=seed))
     assert demos.header["env_kwargs"] == {"obs": "state"}
     assert load_demos(run_demos.default_demo_dir(cfg)).header["env_kwargs"] == {"obs": "state"}
+
+
+def test_gym_demo_cache_names_its_expert_file_so_a_new_expert_records_anew(tmp_path, monkeypatch):
+    import torchrl_mpail2.experts.gym as gym_experts
+    from torchrl_mpail2.trainers import apply_overrides, preset
+    from torchrl_mpail2.trainers import run_demos
+
+    cfg = apply_overrides(preset("hopper"), ["train.num_demos=2"])
+    monkeypatch.setattr(gym_experts, "ASSET_DIR", tmp_path)
+    assert run_demos.default_demo_dir(cfg).name.endswith("-expertnone-2ep-seed0")
+    (tmp_path / "Hopper-v5.pt").write_bytes(b"one expert")
+    first = run_demos.default_demo_dir(cfg)
+    (tmp_path / "Hopper-v5.pt").write_bytes(b"another expert")
+    assert run_demos.default_demo_dir(cfg) != first
+    # the robot tasks' scripted experts have no file: their cache folders are as before
+    assert "expert" not in run_demos.default_demo_dir(preset("push_state")).name

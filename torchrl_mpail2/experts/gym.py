@@ -8,6 +8,7 @@ twin beside it holds the summary.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -37,6 +38,13 @@ def make_policy(kind: str, obs_dim: int, action_spec):
         from torchrl_mpail2.experts.ppo import make_policy as make_ppo_policy
         return make_ppo_policy(obs_dim, action_spec)
     raise ValueError(f"unknown expert kind {kind!r}; valid: {', '.join(KEEPS_REPLAY)}")
+
+
+def expert_fingerprint(env_id: str) -> str:
+    """The first 8 hex digits of the sha256 of ``env_id``'s committed expert file (cached demonstrations carry it,
+    so that a new expert never reuses an old one's), or ``"none"`` when there is no file."""
+    path = ASSET_DIR / f"{env_id}.pt"
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:8] if path.exists() else "none"
 
 
 def evaluate(env, policy, episodes: int) -> list[float]:

@@ -9,6 +9,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_mpail2.data import Demonstrations, load_demo_source, load_demos, record_demos, save_demos
 from torchrl_mpail2.experts import get_expert
+from torchrl_mpail2.experts.gym import expert_fingerprint
 from torchrl_mpail2.config import ExperimentConfig
 
 log = logging.getLogger(__name__)
@@ -17,11 +18,14 @@ DEMO_SEED_OFFSET = 1_000_000
 
 
 def default_demo_dir(cfg: ExperimentConfig) -> Path:
-    """Where scripted demos of ``cfg`` are cached: one folder per env, options, count and seed."""
+    """Where scripted demos of ``cfg`` are cached: one folder per env, options, count and seed (and, for the
+    gymnasium tasks, expert file: see :func:`~torchrl_mpail2.experts.gym.expert_fingerprint`)."""
     t = cfg.train
     options = "".join(f"-{k}={v}" for k, v in sorted({**(t.env_kwargs or {}), **(t.expert_kwargs or {})}.items()))
     if t.demo_steps_after_success is not None:
         options += f"-stop{t.demo_steps_after_success}"
+    if t.env.startswith("gym/"):
+        options += f"-expert{expert_fingerprint(t.env.removeprefix('gym/'))}"
     return Path("demos") / f"{t.env.replace('/', '_')}-{t.obs}{options}-{t.num_demos}ep-seed{t.seed}"
 
 
