@@ -63,7 +63,7 @@ def test_a_damaged_checkpoint_or_a_used_folder_is_refused_by_name(run, tmp_path,
         main([str(out), "--episodes", "0"])
 
 
-@pytest.mark.parametrize("name", ["point_mass", "point_mass_pixels"])
+@pytest.mark.parametrize("name", ["point_mass", "point_mass_pixels", "push_state"])
 def test_each_shipped_agent_loads_verified_and_reaches_the_goal(name):
     from pathlib import Path
 
