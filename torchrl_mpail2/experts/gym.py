@@ -194,10 +194,9 @@ def train_expert(kind: str, env_id: str, frames: int, out: Path, make_run: Calla
     summary (also written as JSON beside ``out``).
 
     ``make_run(env_id, seed, frames)`` builds the run (:class:`~.sac.SACRun` or :class:`~.ppo.PPORun`) with its
-    env: it has ``env``, ``frames``, ``policy``, ``replay`` (a buffer, or ``None``), ``state_dict()``,
-    ``load_state_dict()`` and ``fit(frames, progress=, desc=, on_frames=)``. Every ``save_every`` frames the current policy is saved to
-    ``out`` (marked ``"finished": false``, with the mean of the last 10 training episodes' returns), so a run
-    that is stopped early still leaves usable weights. With ``run_dir``, the whole run is checkpointed there too,
+    env (an :class:`ExpertRun`). Every ``save_every`` frames the current policy is saved to ``out`` (marked
+    ``"finished": false``, with the mean of the last 10 training episodes' returns), so a run that is stopped
+    early still leaves usable weights. With ``run_dir``, the whole run is checkpointed there too,
     at the same frames, and a later call with the same ``run_dir`` resumes from it: a resumed run starts a fresh
     episode with the env reseeded, and ``frames`` may be raised to train further. ``train_seconds`` adds up
     over resumes.
@@ -259,7 +258,8 @@ def add_expert_arguments(p, default_frames: int) -> None:
     p.add_argument("--frames", type=int, default=default_frames)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--run-dir", type=Path, default=None,
-                   help="checkpoint folder of the whole run, resumed when it holds one (default: runs/experts/KIND-ENV-seedS)")
+                   help="checkpoint folder of the whole run, resumed when it holds one "
+                        "(default: runs/experts/KIND-ENV-seedS)")
     p.add_argument("--out", type=Path, default=None,
                    help="the policy's weights file (default: RUN_DIR/expert.pt; copy it over the package's asset, "
                         "torchrl_mpail2/assets/experts/ENV.pt, to make demonstrations from it)")
