@@ -27,6 +27,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 
 from torchrl_mpail2.experts.gym import ExpertRun, add_expert_arguments, expert_cli, train_expert
+
 HIDDEN = (256, 256)
 
 
