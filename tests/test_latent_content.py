@@ -41,3 +41,20 @@ def test_a_compartmentalised_latent_is_probed_block_by_block():
     assert set(blocks) == {"arm", "cube"}
     assert blocks["cube"]["cube_pos"] > 0.8 and blocks["arm"]["cube_pos"] < 0.2  # each block holds its own key
     assert result["cube_pos"]["held_out_r2"] > 0.8
+
+
+def test_bf16_rounding_drowns_a_variation_smaller_than_its_resolution():
+    """A position moved by a hundred-thousandth of its range: float32 latents hold it, bf16-rounded ones do not (the
+    camera runs' cube moves the latent by about a thousandth early in training); a position over its whole range
+    survives the rounding."""
+    _, agent = point_mass_agent()
+    torch.manual_seed(1)
+    small = torch.rand(400, 2) * 2e-5 - 1e-5
+    observation = torch.cat([0.3 + small, torch.full((400, 2), 0.2)], dim=1)
+    result = latent_content(agent, TensorDict({"observation": observation}, [400]), {"small": small * 1e5}, bf16=True)
+    assert result["small"]["held_out_r2"] > 0.8  # float32 keeps it
+    assert result["bf16"]["small"]["held_out_r2"] < 0.2 and result["bf16"]["rounding_to_spread"] > 1.0
+    large = torch.rand(400, 4) * 2 - 1
+    result = latent_content(agent, TensorDict({"observation": large}, [400]), {"position": large[:, :2].clone()},
+                            bf16=True)
+    assert result["bf16"]["position"]["held_out_r2"] > 0.8 and result["bf16"]["rounding_to_spread"] < 0.1

@@ -15,6 +15,11 @@ the latent's spread (the mean over dimensions of its std over the states) and, p
 that key's coder output relative to its mean magnitude, and for a compartmentalised latent
 (``model.fuse_latent=false``) each key's block probed alone (``blocks``: its spread and the probes' ``held_out_r2``):
 the video-only setting's reward reads the table camera's block only, so that block must hold the cube.
+
+``--bf16`` also encodes the same observations under bfloat16 autocast, as ``train.update_precision=bf16`` does in
+every stage of an update, and reports (``bf16``) the rounding's size beside the latent's spread and what the probes
+read from the rounded latents. bf16 keeps 8 significant bits: a LayerNorm'd latent of magnitude about 1 is rounded
+by up to about 0.004, more than a cube a few pixels wide moves it early in training.
 """
 from __future__ import annotations
 
@@ -65,8 +70,20 @@ def visited_states(agent, env, seeds: list[int], play: bool = True) -> tuple[Ten
     return torch.stack(observations), {key: torch.stack(v) for key, v in targets.items()}
 
 
-def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch.Tensor], seed: int = 0) -> dict:
-    """Probe scores and spreads of the latents of ``observations`` (see the module docstring)."""
+def _standardised(z: torch.Tensor) -> torch.Tensor:
+    """``z`` standardised per dimension over its states: what a probe reads, however small the variations."""
+    return (z - z.mean(0)) / z.std(0).clamp_min(1e-12)
+
+
+def _probe(z_std: torch.Tensor, y: torch.Tensor, seed: int) -> dict:
+    stats = fit_latent_probe(z_std, y.clone(), seed=seed)[1]
+    return {"held_out_r2": stats["held_out_r2"], "held_out_mae_m": stats["held_out_mae"]}
+
+
+def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch.Tensor], seed: int = 0,
+                   bf16: bool = False) -> dict:
+    """Probe scores and spreads of the latents of ``observations`` (see the module docstring); with ``bf16``, also
+    the bf16 autocast rounding of the latents against their spread and the probes on the rounded latents."""
     net = agent.modules.encoder.net
     with torch.no_grad():
         z = agent.modules.encoder.encode(observations)
@@ -76,11 +93,18 @@ def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch
                                      for key, f in coders.items()}}
     # the probe reads the latent standardised per dimension: what it holds, however small its variations (which the
     # spread above reports, since the reward and the dynamics see them unscaled)
-    z_std = (z - z.mean(0)) / z.std(0).clamp_min(1e-12)
+    z_std = _standardised(z)
     for key, y in targets.items():
-        _, stats = fit_latent_probe(z_std, y.clone(), seed=seed)
-        out[key] = {"held_out_r2": stats["held_out_r2"], "held_out_mae_m": stats["held_out_mae"],
-                    "std_m": float(y.std(0).mean())}
+        out[key] = {**_probe(z_std, y, seed), "std_m": float(y.std(0).mean())}
+    if bf16:
+        device_type = next(agent.modules.encoder.parameters()).device.type
+        with torch.no_grad(), torch.autocast(device_type, dtype=torch.bfloat16):
+            z16 = agent.modules.encoder.encode(observations).float()
+        rounding = float((z16 - z).abs().mean())
+        # the rounded latents standardised by the exact latents' statistics: the rounding counts as the noise it is
+        z16_std = (z16 - z.mean(0)) / z.std(0).clamp_min(1e-12)
+        out["bf16"] = {"rounding": rounding, "rounding_to_spread": rounding / max(out["latent_spread"], 1e-12),
+                       **{key: _probe(z16_std, y, seed) for key, y in targets.items()}}
     if not agent.modules.cfg.fuse_latent:  # a compartmentalised latent: what each key's block holds on its own
         out["blocks"] = {}
         for block, where in net.latent_slices.items():
@@ -140,6 +164,8 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m torchrl_mpail2.diagnostics latent_content", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_state_set_arguments(p, resets=200, episodes=3)
+    p.add_argument("--bf16", action="store_true", help="also encode under bf16 autocast (train.update_precision=bf16): "
+                   "the rounding beside the latent's spread, and the probes on the rounded latents")
     p.add_argument("--untrained", action="store_true",
                    help="re-initialise the encoder's weights first (its observation normalisation kept): what the "
                         "same architecture reads before training, to compare with")
@@ -154,8 +180,8 @@ def main(argv: list[str] | None = None) -> dict:
     result = {"checkpoint": str(args.checkpoint), "untrained_encoder": args.untrained, "episodes": args.episodes,
               "resets": args.resets}
     if at_reset is not None:
-        result["at_reset"] = latent_content(agent, *at_reset)
+        result["at_reset"] = latent_content(agent, *at_reset, bf16=args.bf16)
     if played:
         result["played"] = latent_content(agent, torch.cat([o for o, _ in played]),
-                                          {key: torch.cat([t[key] for _, t in played]) for key in TARGETS})
+                                          {key: torch.cat([t[key] for _, t in played]) for key in TARGETS}, bf16=args.bf16)
     return write_result(result, args.out)
