@@ -8,7 +8,7 @@ from torchrl_mpail2.envs import make_env
 from torchrl_mpail2.experts.gym import GymExpert
 from torchrl_mpail2.experts.ppo import PPO_SETTINGS, PPORun, RunningMeanStd, make_batched_env, train_ppo
 
-SMALL = {**PPO_SETTINGS, "frames_per_batch": 512, "num_envs": 2, "epochs": 2, "minibatch_size": 128}
+SMALL = {**PPO_SETTINGS, "hidden": [32, 32], "frames_per_batch": 512, "num_envs": 2, "epochs": 2, "minibatch_size": 128}
 
 
 def test_running_mean_std_matches_the_statistics_of_everything_seen():
@@ -51,8 +51,8 @@ def test_ppo_expert_trains_saves_loads_and_resumes(tmp_path):
     assert saved["policy"]["module.0.module.stats.count"].item() == pytest.approx(1024, abs=1e-3)
 
     env = make_env("gym/Hopper-v5", seed=3)
-    expert = GymExpert(out, env.action_spec)
-    assert expert.kind == "ppo"
+    expert = GymExpert(out, env.action_spec)  # rebuilt with the run's network sizes, not the defaults
+    assert expert.kind == "ppo" and expert.settings["hidden"] == [32, 32]
     td = env.reset()
     a1, a2 = expert(td.clone())["action"], expert(td.clone())["action"]
     assert torch.equal(a1, a2) and a1.shape == (3,) and a1.abs().max() <= 1

@@ -1,9 +1,10 @@
 """Gymnasium MuJoCo experts: where their weights live, how a training run of either kind (:mod:`.sac`,
 :mod:`.ppo`) is checkpointed, resumed, saved and evaluated, and how a saved expert acts.
 
-An expert file (``torchrl_mpail2/assets/experts/<env>.pt``) holds ``{"env", "kind", "obs_dim", "hidden",
+An expert file (``torchrl_mpail2/assets/experts/<env>.pt``) holds ``{"env", "kind", "obs_dim", "settings",
 "actor", "summary"}``: ``kind`` (``"sac"`` or ``"ppo"``; files without it are SAC's) says which policy to
-rebuild, ``actor`` is that policy's state dict (a PPO policy's includes its observation normaliser). A JSON
+rebuild, ``settings`` the run's settings it is rebuilt with (network sizes; files without them were trained with
+the defaults), ``actor`` is that policy's state dict (a PPO policy's includes its observation normaliser). A JSON
 twin beside it holds the summary.
 """
 from __future__ import annotations
@@ -29,14 +30,17 @@ KEEPS_REPLAY = {"sac": True, "ppo": False}
 GYM_EXPERT_ENVS = ("Hopper-v5", "Ant-v5", "Humanoid-v5")
 
 
-def make_policy(kind: str, obs_dim: int, action_spec):
-    """The acting module of an expert of ``kind`` (untrained): reads ``"observation"``, writes ``"action"``."""
+def make_policy(kind: str, obs_dim: int, action_spec, settings: dict | None = None):
+    """The acting module of an expert of ``kind`` (untrained): reads ``"observation"``, writes ``"action"``;
+    ``settings`` are the run's (only the network's fields are read; None or missing fields: the kind's defaults)."""
+    settings = settings or {}
     if kind == "sac":
-        from torchrl_mpail2.experts.sac import make_actor
-        return make_actor(obs_dim, action_spec)
+        from torchrl_mpail2.experts.sac import SAC_SETTINGS, make_actor
+        return make_actor(obs_dim, action_spec, hidden=settings.get("hidden", SAC_SETTINGS["hidden"]))
     if kind == "ppo":
+        from torchrl_mpail2.experts.ppo import PPO_SETTINGS
         from torchrl_mpail2.experts.ppo import make_policy as make_ppo_policy
-        return make_ppo_policy(obs_dim, action_spec)
+        return make_ppo_policy(obs_dim, action_spec, {**PPO_SETTINGS, **settings})
     raise ValueError(f"unknown expert kind {kind!r}; valid: {', '.join(KEEPS_REPLAY)}")
 
 
@@ -57,13 +61,14 @@ def evaluate(env, policy, episodes: int) -> list[float]:
     return returns
 
 
-def save_expert(out: Path, env_id: str, kind: str, obs_dim: int, policy, summary: dict) -> None:
-    """Writes the policy and its summary atomically (temporary file, then rename), the summary also as JSON."""
+def save_expert(out: Path, env_id: str, kind: str, obs_dim: int, policy, summary: dict, settings: dict) -> None:
+    """Writes the policy, the settings that rebuild it and its summary atomically (temporary file, then rename), the
+    summary also as JSON."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".pt.tmp")
-    torch.save({"env": env_id, "kind": kind, "obs_dim": obs_dim, "actor": policy.state_dict(), "summary": summary},
-               tmp)
+    torch.save({"env": env_id, "kind": kind, "obs_dim": obs_dim, "settings": settings, "actor": policy.state_dict(),
+                "summary": summary}, tmp)
     tmp.replace(out)
     tmp_json = out.with_suffix(".json.tmp")
     tmp_json.write_text(json.dumps(summary, indent=2))
@@ -91,7 +96,8 @@ class GymExpert:
         state = torch.load(path, map_location="cpu", weights_only=False)
         self.kind = state.get("kind", "sac")  # files from before PPO experts hold SAC actors
         self.obs_dim = state["obs_dim"]
-        self.actor = make_policy(self.kind, self.obs_dim, action_spec)
+        self.settings = state.get("settings", {})  # files from before they were recorded: the defaults
+        self.actor = make_policy(self.kind, self.obs_dim, action_spec, self.settings)
         self.actor.load_state_dict(state["actor"])
         self.summary = state["summary"]
 
@@ -110,7 +116,7 @@ def evaluate_saved(env_id: str, path: Path, episodes: int = 10, seed: int = 0) -
     returns = evaluate(env, expert.actor, episodes)
     summary = {**expert.summary, "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns),
                "eval_episodes": episodes}
-    save_expert(path, env_id, expert.kind, expert.obs_dim, expert.actor, summary)
+    save_expert(path, env_id, expert.kind, expert.obs_dim, expert.actor, summary, expert.settings)
     return summary
 
 
@@ -238,7 +244,8 @@ def train_expert(kind: str, env_id: str, frames: int, out: Path, make_run: Calla
             save_expert(out, env_id, kind, obs_dim, r.policy, {"env": env_id, "kind": kind, "frames": r.frames,
                                                                "seed": seed, "finished": False,
                                                                "train_seconds": seconds(),
-                                                               "train_mean_return_last10": sum(recent) / len(recent)})
+                                                               "train_mean_return_last10": sum(recent) / len(recent)},
+                        settings)
             if checkpoints is not None:
                 write_checkpoint(checkpoints / "last", {**r.state_dict(), "settings": settings,
                                                         "train_seconds": seconds(), "launches": launches}, r.replay)
@@ -248,7 +255,7 @@ def train_expert(kind: str, env_id: str, frames: int, out: Path, make_run: Calla
     summary = {"env": env_id, "kind": kind, "frames": run.frames, "seed": seed, "finished": True,
                "train_seconds": seconds(), "launches": launches, "threads": torch.get_num_threads(),
                "settings": settings, "eval_returns": returns, "eval_mean_return": sum(returns) / len(returns)}
-    save_expert(out, env_id, kind, obs_dim, run.policy, summary)
+    save_expert(out, env_id, kind, obs_dim, run.policy, summary, settings)
     return summary
 
 

@@ -14,6 +14,7 @@ about 30 ms on one thread here: :mod:`.ppo` trains experts for far less compute 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 
@@ -31,10 +32,10 @@ from torchrl_mpail2.experts.gym import ExpertRun, add_expert_arguments, expert_c
 HIDDEN = (256, 256)
 
 
-def make_actor(obs_dim: int, action_spec) -> ProbabilisticActor:
+def make_actor(obs_dim: int, action_spec, hidden: Sequence[int] = HIDDEN) -> ProbabilisticActor:
     """Tanh-Gaussian actor ``observation -> action`` in ``[-1, 1]``."""
     action_dim = action_spec.shape[-1]
-    net = nn.Sequential(MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=list(HIDDEN),
+    net = nn.Sequential(MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=list(hidden),
                             activation_class=nn.ReLU), NormalParamExtractor())
     module = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
     return ProbabilisticActor(module, in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal,
