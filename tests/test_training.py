@@ -149,11 +149,28 @@ def test_auto_update_precision_is_resolved_for_the_machine_and_saved(native, mon
     assert resolve_for_run(model_free, "run").train.update_precision == "float32"  # no bf16 updater there
     explicit = apply_overrides(preset("lift_state"), ["train.update_precision=bf16"])
     assert resolve_for_run(explicit, "run").train.update_precision == "bf16"  # asked for: kept
+    for camera in ("push_pixels", "lift_pixels", "push_video_only"):  # images stay float32: bf16 rounds the cube away
+        assert preset(camera).train.update_precision == "auto"
+        assert resolve_for_run(preset(camera), "run").train.update_precision == "float32"
+    assert ablations.resolve_update_precision("auto", images=True) == "float32"
+    assert ablations.resolve_update_precision("auto") == ("bf16" if native else "float32")
     if native:
         assert ablations.resolve_update_precision("bf16") == "bf16"
     else:  # the agent's builder warns
         with pytest.warns(RuntimeWarning, match="no native bfloat16"):
             assert ablations.resolve_update_precision("bf16") == "bf16"
+
+
+def test_an_agent_that_sees_images_resolves_auto_to_float32(monkeypatch):
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.config import ModelConfig, ablations
+
+    monkeypatch.setattr(ablations, "runs_bf16_natively", lambda device="cpu": True)
+    small = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, horizon=3)
+    for obs, bf16 in (("state", True), ("pixels", False)):
+        env = make_env("point_mass", obs=obs)
+        agent = MPAIL2Agent(env.observation_spec, env.action_spec, small, update_precision="auto")
+        assert agent.updater.bf16 is bf16, obs
 
 
 def _wait_for(predicate, timeout, proc):

@@ -17,6 +17,7 @@ from torchrl_mpail2.config import (AgentSwitches, LossConfig, ModelConfig, Plann
                                    migrate_config_data, resolve_update_precision, switches_for, warn_if_bf16_emulated)
 from torchrl_mpail2.data import Demonstrations
 from torchrl_mpail2.data import checkpoint as ckpt
+from torchrl_mpail2.modules.encoder import is_image_shape
 from torchrl_mpail2.modules.factory import make_mpail2_modules
 from torchrl_mpail2.objectives.model_free import DACLoss
 from torchrl_mpail2.objectives.mpail2 import MPAIL2Loss
@@ -45,7 +46,8 @@ class MPAIL2Agent:
             (``"none"``: MPAIL2). Ignored when ``switches`` is given.
         switches (AgentSwitches, optional): the parts to use, directly.
         update_precision (str): ``float32`` | ``bf16`` (see :class:`MPAIL2Updater`) |
-            ``auto`` (``bf16`` where the device runs it natively, else ``float32``: :func:`resolve_update_precision`).
+            ``auto`` (``bf16`` where the device runs it natively and no observation is an image, else ``float32``:
+            :func:`resolve_update_precision`).
         demos (Demonstrations, optional): set the observation normalisation from the demonstrations and encode
             their keys.
         observation_keys (list[str], optional): the observation keys to encode (default: the demos' keys, else
@@ -76,7 +78,6 @@ class MPAIL2Agent:
                  demos: Demonstrations | None = None, observation_keys: list[str] | None = None,
                  device: torch.device | str = "cpu"):
         self.switches = switches or switches_for(ablation)
-        update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model)
         model, loss, planner = model or ModelConfig(), loss or LossConfig(), planner or PlannerConfig()
         if planner.bf16 and self.switches.world_model:
             warn_if_bf16_emulated("planner.bf16=True", device)
@@ -85,6 +86,9 @@ class MPAIL2Agent:
         model = dataclasses.replace(model, horizon=policy_horizon, policy_horizon=policy_horizon)
         self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
                                            demos=demos).to(device)
+        images = any(is_image_shape(shape) for shape in self.modules.encoder.net.shapes.values())
+        update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model,
+                                                    images=images)
         if self.switches.world_model:
             self.loss = MPAIL2Loss(self.modules, loss)
             self.updater = MPAIL2Updater(self.loss, bf16=update_precision == "bf16")

@@ -158,7 +158,8 @@ def resolve_for_run(cfg: ExperimentConfig, run_dir: str | Path) -> ExperimentCon
     t = cfg.train
     precision = t.update_precision  # a concrete one is checked (and warned about) where the agent is built
     if precision == "auto":
-        precision = resolve_update_precision(precision, t.device, world_model=ABLATIONS[t.ablation].world_model)
+        precision = resolve_update_precision(precision, t.device, world_model=ABLATIONS[t.ablation].world_model,
+                                             images=t.obs != "state")
     train = dataclasses.replace(t, run_dir=str(Path(run_dir).resolve()), update_precision=precision,
                                 demos=None if t.demos is None else resolve_demo_source(t.demos))
     policy_horizon = ABLATIONS[t.ablation].policy_horizon(cfg.model.horizon, cfg.model.policy_horizon)

@@ -111,7 +111,9 @@ PRESETS: dict[str, Preset] = {
         "camera for the dynamics targets alone; at batch 64 it took 0.44 s on one thread of a 2-core AMD EPYC against "
         "1.6 s at 256 and 2.2 s for Table 4's networks at 256) with Table 4's UTD of 1 (UTD 0.5, the preset before, "
         "scored 0.20 and 0.40 at episode 50 on seeds 0 and 1 where UTD 1 scored 1.00 and 0.95), and Lift's reward: the "
-        "raw critic with a gradient penalty of 10 (docs/results/cameras.md).", {**PUSH_STATE, **PIXELS}),
+        "raw critic with a gradient penalty of 10 (docs/results/cameras.md). ``auto`` precision keeps its updates in "
+        "float32 on every CPU (images: :func:`~torchrl_mpail2.config.resolve_update_precision`).",
+        {**PUSH_STATE, **PIXELS}),
     "push_video_only": Preset(
         "The paper's video-only demonstrations (Appendix \"Video-only Demonstration Setup\") on ``push_pixels``: the "
         "learner observes both cameras and proprioception, the demonstrations keep only the table camera's frames, "

@@ -8,7 +8,7 @@ __all__ = ["ENV_NAMES", "FAMILY_OBS_MODES", "GYM_TASKS", "OBS_MODES", "POINT_MAS
 POINT_MASS = "point_mass"
 #: robosuite tasks with a scripted expert (Panda arm).
 ROBOSUITE_TASKS = ("Lift", "Push", "PushMirrored")
-#: gymnasium MuJoCo tasks with a committed SAC expert.
+#: gymnasium MuJoCo tasks with a committed expert (SAC or PPO).
 GYM_TASKS = ("Hopper-v5", "Ant-v5", "Humanoid-v5")
 ROBOSUITE_ENV_NAMES = tuple(f"robosuite/{task}" for task in ROBOSUITE_TASKS)
 #: Every name :func:`torchrl_mpail2.envs.make_env` accepts.
