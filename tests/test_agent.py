@@ -87,6 +87,10 @@ def test_a_bf16_planner_on_a_device_without_native_bf16_warns_by_setting_name(na
     assert len(emulated) == (0 if native else 1)
     if emulated:
         assert issubclass(emulated[0].category, RuntimeWarning) and "planner.bf16=True" in str(emulated[0].message)
+    assert not [w for w in caught if "image observations" in str(w.message)]
+    pixels = make_env("point_mass", obs="pixels")
+    with pytest.warns(RuntimeWarning, match="planner.bf16=True with image observations"):
+        MPAIL2Agent(pixels.observation_spec, pixels.action_spec, TINY_MODEL, planner=bf16_planner)
 
 
 def test_the_planner_discounts_with_the_loss_gamma():

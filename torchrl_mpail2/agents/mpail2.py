@@ -7,6 +7,7 @@ a run folder, a replay buffer or demonstrations.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import torch
@@ -87,6 +88,10 @@ class MPAIL2Agent:
         self.modules = make_mpail2_modules(observation_spec, action_spec, model, observation_keys,
                                            demos=demos).to(device)
         images = any(is_image_shape(shape) for shape in self.modules.encoder.net.shapes.values())
+        if images and planner.bf16 and self.switches.world_model:
+            warnings.warn("planner.bf16=True with image observations: bf16 rounding moves a camera latent more than a "
+                          "small object in the picture does (see resolve_update_precision); plan in float32",
+                          RuntimeWarning, stacklevel=2)
         update_precision = resolve_update_precision(update_precision, device, world_model=self.switches.world_model,
                                                     images=images)
         if self.switches.world_model:
