@@ -32,7 +32,7 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.records import ROOT, child_env
+from benchmarks.records import ROOT, child_env, git_commit
 from benchmarks.speed.common import SETTINGS, machine, median_ms, replay_batch
 
 COMPILED = "_compiled"
@@ -233,7 +233,8 @@ def main() -> None:
     data["profiles"].update(profiles)
     data["meta"].update({s: meta for s in settings})
     path.write_text(json.dumps(data, indent=2))
-    text = markdown(data["summary"], data["profiles"], data["meta"])
+    text = (markdown(data["summary"], data["profiles"], data["meta"]).rstrip("\n")
+            + f"\n\nCommit {git_commit(ROOT, short=True)}.\n\nData: [update_speed.json](update_speed.json)\n")
     (out / "update_speed.md").write_text(text)
     print(text)
 
