@@ -70,9 +70,11 @@ def visited_states(agent, env, seeds: list[int], play: bool = True) -> tuple[Ten
     return torch.stack(observations), {key: torch.stack(v) for key, v in targets.items()}
 
 
-def _standardised(z: torch.Tensor) -> torch.Tensor:
-    """``z`` standardised per dimension over its states: what a probe reads, however small the variations."""
-    return (z - z.mean(0)) / z.std(0).clamp_min(1e-12)
+def _standardised(z: torch.Tensor, like: torch.Tensor | None = None) -> torch.Tensor:
+    """``z`` standardised per dimension by the statistics of ``like`` (default: its own) over the states: what a
+    probe reads, however small the variations."""
+    like = z if like is None else like
+    return (z - like.mean(0)) / like.std(0).clamp_min(1e-12)
 
 
 def _probe(z_std: torch.Tensor, y: torch.Tensor, seed: int) -> dict:
@@ -102,7 +104,7 @@ def latent_content(agent, observations: TensorDictBase, targets: dict[str, torch
             z16 = agent.modules.encoder.encode(observations).float()
         rounding = float((z16 - z).abs().mean())
         # the rounded latents standardised by the exact latents' statistics: the rounding counts as the noise it is
-        z16_std = (z16 - z.mean(0)) / z.std(0).clamp_min(1e-12)
+        z16_std = _standardised(z16, like=z)
         out["bf16"] = {"rounding": rounding, "rounding_to_spread": rounding / max(out["latent_spread"], 1e-12),
                        **{key: _probe(z16_std, y, seed) for key, y in targets.items()}}
     if not agent.modules.cfg.fuse_latent:  # a compartmentalised latent: what each key's block holds on its own
