@@ -128,12 +128,17 @@ class LossConfig:
     """Gradient-norm clip of the value update."""
     policy_grad_clip: float = 1.0
     """Gradient-norm clip of the policy update."""
+    image_shift: int = 0
+    """Random-shift augmentation of camera frames in every update stage: each frame moved by up to this many pixels
+    per axis, its border repeated (``modules.augment.random_shift``; DrQ and TD-MPC2 use 4 at 64 x 64). 0: off, as in
+    the paper. Acting and evaluation see the frames unshifted."""
 
     RANGES: ClassVar[dict[str, Range]] = {
         "gamma": UNIT_INTERVAL, "lmbda": UNIT_INTERVAL, "rho": OPEN_UNIT_INTERVAL, "gp_coef": NON_NEGATIVE,
         "reward_scale_momentum": Range(0.0, 1.0, high_open=True), "transitions_per_window": AT_LEAST_ONE,
         "tau": UNIT_INTERVAL, "init_alpha": POSITIVE,
         "target_entropy_per_step": FINITE, "lr": POSITIVE, "encoder_lr": POSITIVE, "alpha_lr": NON_NEGATIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
+        "image_shift": NON_NEGATIVE,
     }
 
     def __post_init__(self) -> None:

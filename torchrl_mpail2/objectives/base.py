@@ -9,7 +9,8 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.objectives.common import LossModule
 
-from torchrl_mpail2.modules.encoder import ObservationEncoder
+from torchrl_mpail2.modules.augment import random_shift
+from torchrl_mpail2.modules.encoder import ObservationEncoder, is_image_shape
 
 
 def sample_window_transitions(tensordict: TensorDictBase, per_window: int | None) -> TensorDictBase:
@@ -65,6 +66,9 @@ class MPAIL2LossBase(LossModule):
     #: Encode stop-gradient latents (computed with gradients disabled) under bfloat16 autocast, returned in float32.
     #: Off by default: it changes the latents by about 1e-2; ``MPAIL2Updater(..., bf16=True)`` sets it.
     bf16_stop_gradient: bool = False
+    #: Random-shift augmentation of camera frames (``LossConfig.image_shift`` pixels; 0: off) wherever this loss
+    #: encodes observations in training mode; ``MPAIL2Loss`` sets it on its objectives.
+    image_shift: int = 0
 
     def __init__(self, encoder_network: ObservationEncoder, reduction: str = "mean"):
         super().__init__()
@@ -106,6 +110,9 @@ class MPAIL2LossBase(LossModule):
         first = observations[0]
         batch = first.shape[: first.dim() - len(net.shapes[keys[0]])]
         flat = [x.reshape(-1, *net.shapes[key]) for key, x in zip(keys, observations)]
+        if self.image_shift and self.training:
+            flat = [random_shift(x, self.image_shift) if is_image_shape(net.shapes[key]) else x
+                    for key, x in zip(keys, flat)]
         encode = net if list(keys) == net.keys else lambda *xs: net.encode_blocks(dict(zip(keys, xs)))
         if self.bf16_stop_gradient and not torch.is_grad_enabled():
             with torch.autocast(first.device.type, dtype=torch.bfloat16):

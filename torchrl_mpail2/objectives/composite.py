@@ -27,6 +27,12 @@ class StagedLoss(MPAIL2LossBase):
 
     stages: tuple[str, ...] = ()
 
+    def set_image_shift(self, pad: int) -> None:
+        """Random-shift augmentation of camera frames (``LossConfig.image_shift``) in this loss and its objectives."""
+        for module in self.modules():
+            if isinstance(module, MPAIL2LossBase):
+                module.image_shift = int(pad)
+
     def set_keys(self, **kwargs) -> None:
         super().set_keys(**kwargs)
         for stage in self.stages:

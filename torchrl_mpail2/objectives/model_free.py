@@ -128,6 +128,7 @@ class DACLoss(StagedLoss):
                                              target_entropy=cfg.target_entropy_per_step)
         self.value_loss = ModelFreeValueLoss(m.encoder, m.reward, m.value, m.policy, self.actor_loss, gamma=cfg.gamma,
                                              mask_terminal=cfg.mask_terminal)
+        self.set_image_shift(cfg.image_shift)
 
     @property
     def log_alpha(self) -> nn.Parameter:

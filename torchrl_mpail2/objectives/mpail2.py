@@ -62,6 +62,7 @@ class MPAIL2Loss(StagedLoss):
                                              lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
                                              init_alpha=cfg.init_alpha,
                                              target_entropy_per_step=cfg.target_entropy_per_step)
+        self.set_image_shift(cfg.image_shift)
 
     @property
     def log_alpha(self) -> torch.nn.Parameter:
