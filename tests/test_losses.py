@@ -87,6 +87,25 @@ def test_value_loss_gradients_reach_only_q_and_never_the_target():
     assert all(not p.requires_grad for p in loss.target_qvalue_network_params.values(True, True))
 
 
+def test_value_trains_encoder_sends_the_value_gradient_into_the_encoder_and_nowhere_else():
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, encoder_grad=True)
+    td = replay_batch()
+    torch.manual_seed(1)  # the target's imagined plan is sampled
+    out = loss(td)
+    out["loss_value"].backward()
+    assert _has_grad(m.value) and _has_grad(m.encoder)
+    for other in (m.dynamics, m.reward, m.policy):
+        assert _no_grad(other)
+    plain = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy)
+    torch.manual_seed(1)
+    torch.testing.assert_close(plain(td)["loss_value"], out["loss_value"].detach())  # the same regression
+    groups = MPAIL2Loss(m, LossConfig(value_trains_encoder=True)).param_groups()
+    encoder = {id(p) for p in m.encoder.parameters()}
+    assert [g["lr"] for g in groups["value"]] == [3e-4, 3e-5]
+    assert {id(p) for p in groups["value"][1]["params"]} == encoder
+
+
 def test_value_target_reads_the_slow_target_and_soft_update_moves_it():
     from torchrl.objectives import SoftUpdate
     m = tiny_modules()
@@ -203,7 +222,7 @@ def test_param_groups_follow_table_4():
     assert [g["lr"] for g in groups["dynamics"]] == [3e-5, 3e-4]
     assert groups["value"][0]["max_grad_norm"] == 5.0 and groups["actor"][0]["max_grad_norm"] == 1.0
     ids = [id(p) for stage in groups.values() for g in stage for p in g["params"]]
-    assert len(ids) == len(set(ids))  # no parameter is stepped by two optimisers
+    assert len(ids) == len(set(ids))  # no parameter is stepped by two optimisers (unless value_trains_encoder)
 
 
 def test_updater_changes_each_component_and_skips_nonfinite_batches():

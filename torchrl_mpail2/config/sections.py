@@ -128,6 +128,9 @@ class LossConfig:
     """Gradient-norm clip of the value update."""
     policy_grad_clip: float = 1.0
     """Gradient-norm clip of the policy update."""
+    value_trains_encoder: bool = False
+    """The value loss's gradient trains the encoder too (at ``encoder_lr``, in the value stage), as TD-MPC2's encoder
+    learns from its value loss. False: the encoder learns from Eq. 2 alone, as in the paper and the authors' code."""
     image_shift: int = 0
     """Random-shift augmentation of camera frames in every update stage: each frame moved by up to this many pixels
     per axis, its border repeated (``modules.augment.random_shift``; DrQ and TD-MPC2 use 4 at 64 x 64). 0: off, as in

@@ -57,7 +57,8 @@ class MPAIL2Loss(StagedLoss):
                                                  scale_momentum=cfg.reward_scale_momentum)
         self.value_loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                                 lmbda=cfg.lmbda, return_form=cfg.return_form,
-                                                mask_terminal=cfg.mask_terminal, head_reduce=cfg.value_head_reduce)
+                                                mask_terminal=cfg.mask_terminal, head_reduce=cfg.value_head_reduce,
+                                                encoder_grad=cfg.value_trains_encoder)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                              lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
                                              init_alpha=cfg.init_alpha,
@@ -73,14 +74,17 @@ class MPAIL2Loss(StagedLoss):
 
         Each value is a list of ``torch.optim`` parameter-group dicts; ``"max_grad_norm"`` (or None) is
         the clip applied before that optimiser's step. Stages: ``dynamics`` (encoder at ``encoder_lr``,
-        dynamics at ``lr``), ``reward``, ``value``, ``actor`` (policy), ``alpha`` (``log_alpha``).
+        dynamics at ``lr``), ``reward``, ``value`` (and the encoder at ``encoder_lr`` with
+        ``cfg.value_trains_encoder``), ``actor`` (policy), ``alpha`` (``log_alpha``).
         """
         m, c = self.components, self.cfg
         return {
             "dynamics": [dict(params=list(m.encoder.parameters()), lr=c.encoder_lr, max_grad_norm=None),
                          dict(params=list(m.dynamics.parameters()), lr=c.lr, max_grad_norm=None)],
             "reward": [dict(params=list(m.reward.parameters()), lr=c.lr, max_grad_norm=None)],
-            "value": [dict(params=list(m.value.parameters()), lr=c.lr, max_grad_norm=c.value_grad_clip)],
+            "value": [dict(params=list(m.value.parameters()), lr=c.lr, max_grad_norm=c.value_grad_clip)]
+            + ([dict(params=list(m.encoder.parameters()), lr=c.encoder_lr, max_grad_norm=c.value_grad_clip)]
+               if c.value_trains_encoder else []),
             "actor": [dict(params=list(m.policy.parameters()), lr=c.lr, max_grad_norm=c.policy_grad_clip)],
             "alpha": [dict(params=[self.actor_loss.log_alpha], lr=c.alpha_lr, max_grad_norm=None)],
         }

@@ -33,6 +33,9 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         return_form (str): form of the imagined return, one of ``RETURN_FORMS`` (``"paper"``: Eq. 6 as printed).
         mask_terminal (bool): no bootstrap after terminal transitions (False: the robot tasks never terminate).
         head_reduce (str): ``"sum"`` (Eq. 4) or ``"mean"`` over the ensemble heads.
+        encoder_grad (bool): regress :math:`Q^e_\zeta(e_\omega(o), a)` with the gradient reaching the encoder
+            (``LossConfig.value_trains_encoder``; not in the paper). The target is computed from stop-gradient latents
+            either way.
 
     With ``bf16_stop_gradient`` set (the updater's bf16 mode) the target's imagined rollout runs under bfloat16
     autocast; the return itself is float32.
@@ -53,7 +56,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
     def __init__(self, encoder_network: ObservationEncoder, dynamics_network: LatentDynamics,
                  reward_network: TransitionReward, qvalue_network: QEnsemble, policy_network: MultiStepPolicy, *,
                  gamma: float = 0.99, lmbda: float = 0.95, return_form: str = "paper", mask_terminal: bool = False,
-                 head_reduce: str = "sum", reduction: str = "mean"):
+                 head_reduce: str = "sum", encoder_grad: bool = False, reduction: str = "mean"):
         super().__init__(encoder_network, reduction)
         self.__dict__["dynamics_network"] = dynamics_network  # read only: kept out of this loss's parameters
         self.__dict__["reward_network"] = reward_network
@@ -62,6 +65,7 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         if head_reduce not in ("sum", "mean"):
             raise ValueError(f"head_reduce must be 'sum' or 'mean', got {head_reduce!r}")
         self.gamma, self.lmbda, self.mask_terminal, self.head_reduce = gamma, lmbda, mask_terminal, head_reduce
+        self.encoder_grad = encoder_grad
         self.return_form = checked_return_form(return_form)
 
     @torch.no_grad()
@@ -85,6 +89,8 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         action = action.reshape(-1, action.shape[-1])
         terminated = self.require(tensordict, self.tensor_keys.terminated) if self.mask_terminal else None
         y, r = self.target(z, z_next, terminated)
+        if self.encoder_grad:
+            z = self.encode(tensordict).reshape(-1, z.shape[-1])
         q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
         errors = (q - y).pow(2)  # [E, M]: each head regresses independently
         loss = self.reduce(errors.sum(0) if self.head_reduce == "sum" else errors.mean(0))
