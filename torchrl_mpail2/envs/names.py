@@ -14,10 +14,11 @@ ROBOSUITE_ENV_NAMES = tuple(f"robosuite/{task}" for task in ROBOSUITE_TASKS)
 #: Every name :func:`torchrl_mpail2.envs.make_env` accepts.
 ENV_NAMES = (POINT_MASS, *ROBOSUITE_ENV_NAMES, *(f"gym/{task}" for task in GYM_TASKS))
 #: Observation modes of each env family (the part of an env name before ``/``): ``state`` everywhere; the point
-#: mass also ``pixels`` (a 64 x 64 picture of the arena); robosuite also ``pixels`` (both 64 x 64 cameras +
-#: proprioception) and ``external_pixels`` (the external camera alone).
+#: mass also ``pixels`` (a 64 x 64 picture of the arena) and ``pixels_state`` (the picture and the state vector, as
+#: robosuite's cameras come with proprioception); robosuite also ``pixels`` (both 64 x 64 cameras + proprioception)
+#: and ``external_pixels`` (the external camera alone).
 FAMILY_OBS_MODES = {
-    POINT_MASS: ("state", "pixels"),
+    POINT_MASS: ("state", "pixels", "pixels_state"),
     "robosuite": ("state", "pixels", "external_pixels"),
     "gym": ("state",),
 }
@@ -30,6 +31,6 @@ def obs_modes_of(env_name: str) -> tuple[str, ...]:
 
     Examples:
         >>> obs_modes_of("point_mass"), obs_modes_of("gym/Hopper-v5")
-        (('state', 'pixels'), ('state',))
+        (('state', 'pixels', 'pixels_state'), ('state',))
     """
     return FAMILY_OBS_MODES.get(env_name.partition("/")[0], ())

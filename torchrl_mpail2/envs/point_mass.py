@@ -168,7 +168,9 @@ class PointMassEnv(EnvBase):
         seed (int, optional): seed of the start-state generator. If ``None``, it is drawn from the
             global torch RNG so that :func:`torch.manual_seed` controls it.
         horizon (int): episode length (truncation). Defaults to 50.
-        obs (str): observation mode, ``"state"`` (default) or ``"pixels"``.
+        obs (str): observation mode: ``"state"`` (default: ``"observation"``, position and velocity), ``"pixels"``
+            (the picture ``"external_image"`` alone) or ``"pixels_state"`` (both: the point mass's video-only setting,
+            in which the demonstrations keep the picture and the learner sees the state as well).
         glow (float): std of the glow around the point in the pictures (:func:`draw_arena`). Defaults to
             :data:`GLOW_SIGMA`.
 
@@ -185,6 +187,8 @@ class PointMassEnv(EnvBase):
         (torch.Size([3, 50]), True)
         >>> PointMassEnv(obs="pixels").reset()["external_image"].shape
         torch.Size([3, 64, 64])
+        >>> sorted(PointMassEnv(obs="pixels_state").observation_spec.keys())
+        ['external_image', 'observation', 'success']
     """
 
     def __init__(
@@ -220,7 +224,7 @@ class PointMassEnv(EnvBase):
     def pictures(self) -> str | None:
         """How the pixel observation is drawn (recorded by demonstrations, :func:`~torchrl_mpail2.envs.keys.pictures_of`);
         None from state."""
-        return f"point_mass arena, glow {self.glow}" if self.obs_mode == "pixels" else None
+        return f"point_mass arena, glow {self.glow}" if self.obs_mode != "state" else None
 
     def render(self, size: int = 128) -> np.ndarray:
         """An RGB frame ``[size, size, 3]`` uint8 of the arena (batch size ``[]`` only): :func:`draw_arena`."""
@@ -231,11 +235,12 @@ class PointMassEnv(EnvBase):
     def _make_specs(self) -> None:
         batch = self.batch_size
         flag = lambda: Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device)  # noqa: E731
-        if self.obs_mode == "pixels":
-            seen = {IMAGE_KEY: Bounded(0, 255, shape=(*batch, 3, IMAGE_SIZE, IMAGE_SIZE), dtype=torch.uint8,
-                                       device=self.device)}
-        else:
-            seen = {"observation": Unbounded(shape=(*batch, OBSERVATION_DIM), dtype=torch.float32, device=self.device)}
+        seen = {}
+        if self.obs_mode != "pixels":
+            seen["observation"] = Unbounded(shape=(*batch, OBSERVATION_DIM), dtype=torch.float32, device=self.device)
+        if self.obs_mode != "state":
+            seen[IMAGE_KEY] = Bounded(0, 255, shape=(*batch, 3, IMAGE_SIZE, IMAGE_SIZE), dtype=torch.uint8,
+                                      device=self.device)
         self.observation_spec = Composite(
             seen,
             success=flag(),
@@ -270,10 +275,11 @@ class PointMassEnv(EnvBase):
 
     def _observation(self) -> TensorDict:
         distance = self._position.norm(dim=-1, keepdim=True)
-        if self.obs_mode == "pixels":
-            seen = {IMAGE_KEY: draw_arena(self._position, glow=self.glow)}
-        else:
-            seen = {"observation": torch.cat([self._position, self._velocity], dim=-1)}
+        seen = {}
+        if self.obs_mode != "pixels":
+            seen["observation"] = torch.cat([self._position, self._velocity], dim=-1)
+        if self.obs_mode != "state":
+            seen[IMAGE_KEY] = draw_arena(self._position, glow=self.glow)
         return TensorDict(
             {**seen, "success": distance < SUCCESS_RADIUS},
             batch_size=self.batch_size,
