@@ -46,6 +46,17 @@ def test_pixel_observation_is_a_uint8_picture_and_nothing_else(batch_size):
     assert observation_keys_of(make_env("point_mass", obs="pixels", num_envs=num_envs)) == ["external_image"]
 
 
+def test_pixels_state_observes_the_picture_and_the_state_of_the_same_point():
+    env = PointMassEnv(batch_size=[4], seed=5, obs="pixels_state")
+    check_env_specs(env)
+    assert observation_keys_of(env) == ["observation", "external_image"]
+    td = env.rollout(5, policy=PointMassExpert())
+    position = td["next", "observation"][..., :2].reshape(-1, 2)
+    frames = td["next", "external_image"].reshape(-1, 3, SIZE, SIZE)
+    assert torch.allclose(_blue_centroid(frames), position, atol=0.05)
+    assert env.pictures == PointMassEnv(obs="pixels").pictures and PointMassEnv().pictures is None
+
+
 def test_the_point_moves_in_the_picture_where_the_state_moves():
     state_env, pixel_env = PointMassEnv(batch_size=[8], seed=3), PointMassEnv(batch_size=[8], seed=3, obs="pixels")
     actions = torch.rand(30, 8, 2, generator=torch.Generator().manual_seed(0)) * 2 - 1

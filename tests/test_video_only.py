@@ -91,3 +91,18 @@ def test_the_video_only_preset_reads_only_the_table_camera():
     cfg = preset("push_video_only")
     assert cfg.train.obs == "pixels" and cfg.train.demo_keys == ("external_image",)
     assert cfg.model.fuse_latent is False and cfg.model.reward_latent_keys == ("external_image",)
+
+
+@pytest.mark.slow
+def test_mpail2_learns_the_point_mass_from_picture_only_demonstrations(tmp_path):
+    """The video-only path end to end (``point_mass_video_only``): demonstrations of the picture alone, the learner
+    seeing the picture and the state, the reward reading the picture's latent block. Measured: any-step success 1.0
+    at 30 on the 10 fixed episodes on seeds 0 and 1 (about 3.5 minutes a run on one thread)."""
+    from conftest import QUIET_RUN
+    from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+
+    trainer = MPAIL2Trainer(apply_overrides(preset("point_mass_video_only"), [*QUIET_RUN, "train.total_episodes=30"]),
+                            run_dir=tmp_path / "run")
+    assert list(trainer.demos.observation_keys) == ["external_image"]  # the state stays out of the demonstrations
+    summary = trainer.train()
+    assert summary["last_eval"]["episode"] == 30 and summary["last_eval"]["success_rate_any_step"] >= 0.8, summary
