@@ -6,7 +6,7 @@ from tensordict import TensorDict
 from torchrl_mpail2.config import ConfigError, LossConfig, ModelConfig
 from torchrl_mpail2.modules import MPAIL2Modules
 from torchrl_mpail2.modules.augment import random_shift
-from torchrl_mpail2.objectives import MPAIL2Loss
+from torchrl_mpail2.objectives import DACLoss, MPAIL2Loss
 
 
 def test_each_frame_moves_by_its_own_offset_with_its_border_repeated():
@@ -67,3 +67,12 @@ def test_the_loss_shifts_frames_in_training_only_and_in_every_objective():
     shifted.train()
     out = shifted(td)
     assert all(torch.isfinite(out[k]) for k in ("loss_dynamics", "loss_reward", "loss_value", "loss_actor"))
+
+
+def test_the_model_free_ablation_shifts_its_frames_too():
+    cfg = ModelConfig(latent_dim=8, hidden_dims=(16,), coder_dim=16, vector_coder_hidden=16, cnn_channels=4,
+                      horizon=1, policy_horizon=1)
+    loss = DACLoss(MPAIL2Modules({"image": [3, 64, 64], "proprio": [5]}, action_dim=2, cfg=cfg), LossConfig(image_shift=2))
+    shifts = {type(m).__name__: m.image_shift for m in loss.modules() if hasattr(m, "image_shift")}
+    assert set(shifts) == {"DACLoss", "AdversarialRewardLoss", "ModelFreeValueLoss", "ModelFreeActorLoss"}
+    assert set(shifts.values()) == {2}
