@@ -178,6 +178,18 @@ def test_merge_combines_the_seeds_of_results_of_one_configuration(bench, tmp_pat
     assert (bench.RESULTS / "all.png").exists()
 
 
+def test_a_merged_result_merges_again_keeping_each_seeds_commit(bench, tmp_path):
+    for name, seed, commit in (("a", 0, "c0"), ("b", 1, "c1"), ("c", 2, "c2")):
+        _result_named(bench, tmp_path, name, {seed: [(50, 0.2, 0.1)]})
+        path = bench.RESULTS / f"{name}.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), "commit": commit}))
+    bench.merge("ab", ["a", "b"])
+    assert json.loads((bench.RESULTS / "ab.json").read_text())["commit"] == {"0": "c0", "1": "c1"}
+    r = bench.merge("abc", ["ab", "c"])
+    assert r["seeds"] == [0, 1, 2]
+    assert {int(k): v for k, v in r["commit"].items()} == {0: "c0", 1: "c1", 2: "c2"}
+
+
 def test_merge_refuses_other_configurations_repeated_seeds_and_missing_results(bench, tmp_path):
     _result_named(bench, tmp_path, "first", {0: [(50, 0.2, 0.1)]})
     _result_named(bench, tmp_path, "other", {1: [(50, 0.4, 0.3)]}, eval_episodes=50)

@@ -395,7 +395,7 @@ def merge(name: str, sources: list[str]) -> dict:
     """One result from the seeds of several results of the same configuration (e.g. seeds 2 and 3 run later, after
     the first seeds' run folders were gone): refuses configurations that differ beyond
     :data:`MERGE_FREE_FIELDS` and seeds that appear twice, naming them. ``commit`` becomes ``{seed: commit}`` when
-    the sources ran at different commits."""
+    the sources ran at different commits; a source may itself be a merged result."""
     loaded = {}
     for source in sources:
         path = RESULTS / f"{source}.json"
@@ -412,7 +412,8 @@ def merge(name: str, sources: list[str]) -> dict:
             if int(seed) in per_seed:
                 raise SystemExit(f"--merge: seed {seed} is in {source} and in an earlier source")
             per_seed[int(seed)] = p
-            commits[int(seed)] = r["commit"]
+            commit = r["commit"]  # a merged source holds {seed: commit}
+            commits[int(seed)] = commit.get(str(seed), commit.get(seed)) if isinstance(commit, dict) else commit
     commit = next(iter(commits.values())) if len(set(commits.values())) == 1 else dict(sorted(commits.items()))
     return _write_result(name, first["config"], dict(sorted(per_seed.items())), commit, {"merged_from": list(loaded)})
 
