@@ -413,7 +413,7 @@ def merge(name: str, sources: list[str]) -> dict:
                 raise SystemExit(f"--merge: seed {seed} is in {source} and in an earlier source")
             per_seed[int(seed)] = p
             commit = r["commit"]  # a merged source holds {seed: commit}
-            commits[int(seed)] = commit.get(str(seed), commit.get(seed)) if isinstance(commit, dict) else commit
+            commits[int(seed)] = commit[str(seed)] if isinstance(commit, dict) else commit
     commit = next(iter(commits.values())) if len(set(commits.values())) == 1 else dict(sorted(commits.items()))
     return _write_result(name, first["config"], dict(sorted(per_seed.items())), commit, {"merged_from": list(loaded)})
 

@@ -7,9 +7,9 @@ Each frame ``o`` of a batch is moved by its own integer offset ``(dy, dx)``, dra
     \tilde o[c, i, j] = o\big[c,\ \mathrm{clip}(i + dy, 0, H - 1),\ \mathrm{clip}(j + dx, 0, W - 1)\big],
 
 the same as padding the frame by ``p`` replicated pixels and cropping an ``H x W`` window at a random place.
-Pixel-based agents (DrQ, TD-MPC2) train their encoders on frames shifted this way (``p = 4`` at 64 x 64): a cube
-that moves by a pixel then moves the latent about as much as a frame that shifts by a pixel, so nearby places get
-nearby latents. The agent acts on the frames as they are.
+Pixel-based agents (DrQ, TD-MPC2) train their encoders on frames shifted this way (``p = 4`` at 64 x 64), meant to
+give nearby places nearby latents; on the point mass from pixels it did not help (docs/results/cameras.md). The agent
+acts on the frames as they are.
 """
 from __future__ import annotations
 

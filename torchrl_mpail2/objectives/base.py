@@ -67,7 +67,7 @@ class MPAIL2LossBase(LossModule):
     #: Off by default: it changes the latents by about 1e-2; ``MPAIL2Updater(..., bf16=True)`` sets it.
     bf16_stop_gradient: bool = False
     #: Random-shift augmentation of camera frames (``LossConfig.image_shift`` pixels; 0: off) wherever this loss
-    #: encodes observations in training mode; ``MPAIL2Loss`` sets it on its objectives.
+    #: encodes observations in training mode; ``StagedLoss.set_image_shift`` sets it on a composite's objectives.
     image_shift: int = 0
 
     def __init__(self, encoder_network: ObservationEncoder, reduction: str = "mean"):
