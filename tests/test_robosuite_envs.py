@@ -250,7 +250,8 @@ def test_non_finite_action_raises_naming_the_task(state_envs):
 
 @pytest.mark.parametrize(
     ("task", "obs", "message"),
-    [("Stack", "state", "Lift, Push, PushMirrored"), ("Lift", "rgb", "state, pixels, external_pixels")],
+    [("Stack", "state", "Lift, Push, PushMirrored"), ("Lift", "rgb", "state, pixels, external_pixels"),
+     ("Lift", "pixels_state", "valid modes: state, pixels, external_pixels")],
 )
 def test_bad_names_raise_value_error(task, obs, message):
     with pytest.raises(ValueError, match=message):

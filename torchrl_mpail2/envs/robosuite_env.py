@@ -30,7 +30,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded  # noqa: E40
 from torchrl.envs import EnvBase, Transform, TransformedEnv  # noqa: E402
 
 from torchrl_mpail2.envs.keys import with_bookkeeping  # noqa: E402
-from torchrl_mpail2.envs.names import OBS_MODES  # noqa: E402
+from torchrl_mpail2.envs.names import obs_modes_of  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
 from torchrl_mpail2.envs.robosuite_observations import (  # noqa: E402
     EXTERNAL_CAMERA, IMAGE_SIZE, PROPRIO_DIM, WRIST_CAMERA, object_vector, proprio_vector,
@@ -59,8 +59,9 @@ _INSTABILITY_WARNINGS = {
 def _check_names(task: str, obs: str) -> None:
     if task not in ROBOSUITE_TASKS:
         raise ValueError(f"Unknown robosuite task {task!r}; valid tasks: {', '.join(ROBOSUITE_TASKS)}.")
-    if obs not in OBS_MODES:
-        raise ValueError(f"Unknown observation mode {obs!r}; valid modes: {', '.join(OBS_MODES)}.")
+    modes = obs_modes_of("robosuite")
+    if obs not in modes:
+        raise ValueError(f"Unknown observation mode {obs!r}; valid modes: {', '.join(modes)}.")
 
 
 class RobosuiteEnv(EnvBase):
