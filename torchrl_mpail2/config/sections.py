@@ -31,6 +31,11 @@ class ModelConfig:
     cnn_init: str = "torch"
     """Initialisation of the image coder (``modules.encoder.CNN_INITS``): ``torch`` (PyTorch's defaults; the paper
     states none) or ``kaiming`` (Kaiming-normal weights, zero biases: the pictures' differences keep their scale)."""
+    image_head: str = "flatten"
+    """Head of the image coder (``modules.encoder.IMAGE_HEADS``): ``flatten`` the last feature map (Fig. 14) or
+    ``keypoints`` (spatial soft-argmax coordinates of ``keypoints`` maps, ``modules.keypoints``; not in the paper)."""
+    keypoints: int = 32
+    """Keypoints of the ``keypoints`` image head (two coordinates each)."""
     image_norm: str = "centred"
     """How camera pixels enter the CNN (``modules.encoder.IMAGE_NORMS``): ``centred`` (x / 255 - 0.5, as the
     authors' code) or ``demos`` (each pixel and channel standardised by the demonstrations' mean and std, the std
@@ -56,7 +61,7 @@ class ModelConfig:
 
     RANGES: ClassVar[dict[str, Range]] = {
         "latent_dim": POSITIVE, "hidden_dims": POSITIVE, "vector_coder_hidden": POSITIVE, "coder_dim": POSITIVE,
-        "cnn_channels": POSITIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
+        "cnn_channels": POSITIVE, "keypoints": POSITIVE, "horizon": POSITIVE, "policy_horizon": POSITIVE, "num_q": Range(2.0), "obs_clip": POSITIVE,
         "log_std_min": FINITE, "log_std_max": FINITE,
     }
 
@@ -71,6 +76,8 @@ class ModelConfig:
             raise ConfigError("ModelConfig.log_std_min must be below log_std_max")
         if self.cnn_init not in ("torch", "kaiming"):
             raise ConfigError(f"unknown ModelConfig.cnn_init {self.cnn_init!r}; choose from ('torch', 'kaiming')")
+        if self.image_head not in ("flatten", "keypoints"):
+            raise ConfigError(f"unknown ModelConfig.image_head {self.image_head!r}; choose from ('flatten', 'keypoints')")
         if self.image_norm not in ("centred", "demos"):
             raise ConfigError(f"unknown ModelConfig.image_norm {self.image_norm!r}; choose from ('centred', 'demos')")
         if self.reward_latent_keys is not None:

@@ -15,6 +15,7 @@ from tensordict.nn import TensorDictModuleBase
 from torch import Tensor, nn
 
 from torchrl_mpail2.modules._mlp import mlp
+from torchrl_mpail2.modules.keypoints import SpatialSoftmax
 
 IMAGE_SIZE = 64
 IMAGE_CHANNELS = 3
@@ -27,6 +28,9 @@ PIXEL_STD_FLOOR = 0.02
 #: Initialisations of the image coder (``ModelConfig.cnn_init``): ``torch`` PyTorch's defaults, ``kaiming``
 #: Kaiming-normal weights (fan in, ReLU gain) and zero biases for the convolutions and the coder's Linear.
 CNN_INITS = ("torch", "kaiming")
+#: Heads of the image coder (``ModelConfig.image_head``): ``flatten`` the last feature map (Fig. 14), ``keypoints``
+#: a 1x1 convolution to ``ModelConfig.keypoints`` maps and their spatial soft-argmax (:mod:`.keypoints`).
+IMAGE_HEADS = ("flatten", "keypoints")
 _CNN_STRIDES = (2, 2, 2, 1)
 _CNN_KERNEL = 3
 
@@ -54,14 +58,19 @@ class ImageCoder(nn.Module):
     ``benchmarks/speed/cnn_layout_speed.py``); the result is the channels-first computation's up to float rounding
     (``tests/test_modules.py``).
 
+    ``head="keypoints"`` (:data:`IMAGE_HEADS`) replaces the flatten by ``keypoints`` spatial soft-argmax coordinates
+    of the last feature map (5 x 5 for 64 x 64 inputs): ``Conv1x1 -> SpatialSoftmax -> Linear -> SiLU``.
+
     ``init="kaiming"`` (:data:`CNN_INITS`) keeps the scale of the pictures' differences through the layers: with
     PyTorch's defaults each layer shrinks them, and the coder's outputs (rms 0.02 for the point mass) fall below the
     fusion layer's biases (rms 0.08), so that the latents of all pictures nearly coincide.
     """
 
     def __init__(self, image_shape: Sequence[int], channels: int, out_dim: int, clip: float = 5.0,
-                 init: str = "torch"):
+                 init: str = "torch", head: str = "flatten", keypoints: int = 32):
         super().__init__()
+        if head not in IMAGE_HEADS:
+            raise ValueError(f"unknown image coder head {head!r}; choose from {IMAGE_HEADS}")
         self.clip = clip
         self.register_buffer("pixel_mean", torch.full(tuple(image_shape), 0.5))
         self.register_buffer("pixel_std", torch.ones(tuple(image_shape)))
@@ -70,9 +79,12 @@ class ImageCoder(nn.Module):
         for stride in _CNN_STRIDES:
             layers += [nn.Conv2d(in_ch, channels, _CNN_KERNEL, stride=stride), nn.SiLU()]
             in_ch = channels
-        self.convs = nn.Sequential(*layers, nn.Flatten())
+        if head == "flatten":
+            self.convs = nn.Sequential(*layers, nn.Flatten())
+        else:  # the keypoints of the last feature map: [K, h, w] -> [2K]
+            self.convs = nn.Sequential(*layers, nn.Conv2d(channels, keypoints, 1), SpatialSoftmax())
         with torch.no_grad():
-            flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # 800 for 64x64 inputs
+            flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # flatten: 800 for 64x64 inputs
         self.out = nn.Sequential(nn.Linear(flat, out_dim), nn.SiLU())
         if init == "kaiming":
             for layer in (*self.convs, self.out[0]):
@@ -110,11 +122,14 @@ class EncoderNet(nn.Module):
         fuse_latent (bool): fused (True) or compartmentalised (False) latent.
         obs_clip (float): clip of normalised vector observations.
         cnn_init (str): initialisation of the image coders (:data:`CNN_INITS`).
+        image_head (str): head of the image coders (:data:`IMAGE_HEADS`).
+        keypoints (int): keypoints of the ``keypoints`` head.
     """
 
     def __init__(self, observation_shapes: Mapping[str, Sequence[int]], latent_dim: int, hidden_dims: Sequence[int],
                  vector_coder_hidden: int = 256, coder_dim: int = 512, cnn_channels: int = 32,
-                 fuse_latent: bool = True, obs_clip: float = 5.0, cnn_init: str = "torch"):
+                 fuse_latent: bool = True, obs_clip: float = 5.0, cnn_init: str = "torch",
+                 image_head: str = "flatten", keypoints: int = 32):
         super().__init__()
         if not observation_shapes:
             raise ValueError("the encoder needs at least one observation key")
@@ -124,7 +139,8 @@ class EncoderNet(nn.Module):
         self.coders = nn.ModuleDict()
         for key, shape in self.shapes.items():
             if is_image_shape(shape):
-                self.coders[key] = ImageCoder(shape, cnn_channels, coder_dim, clip=obs_clip, init=cnn_init)
+                self.coders[key] = ImageCoder(shape, cnn_channels, coder_dim, clip=obs_clip, init=cnn_init,
+                                              head=image_head, keypoints=keypoints)
             elif len(shape) == 1:
                 self.coders[key] = VectorCoder(shape[0], vector_coder_hidden, coder_dim)
                 self.register_buffer(f"obs_mean_{key}", torch.zeros(shape))

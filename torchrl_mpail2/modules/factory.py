@@ -59,7 +59,7 @@ class MPAIL2Modules(nn.Module):
         self.encoder = ObservationEncoder(
             observation_shapes, cfg.latent_dim, cfg.hidden_dims, vector_coder_hidden=cfg.vector_coder_hidden,
             coder_dim=cfg.coder_dim, cnn_channels=cfg.cnn_channels, fuse_latent=cfg.fuse_latent, obs_clip=cfg.obs_clip,
-            cnn_init=cfg.cnn_init)
+            cnn_init=cfg.cnn_init, image_head=cfg.image_head, keypoints=cfg.keypoints)
         latent_index = None
         if cfg.reward_latent_keys is not None:
             slices = self.encoder.net.latent_slices
