@@ -100,13 +100,26 @@ class ImageCoder(nn.Module):
             state_dict.setdefault(prefix + name, torch.full_like(getattr(self, name), fill))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
-    def forward(self, image: Tensor) -> Tensor:
-        batch = image.shape[:-3]
+    def _normalised(self, image: Tensor) -> Tensor:
+        """``[*B, 3, H, W]`` -> ``[N, 3, H, W]`` channels-last, standardised and clipped."""
         x = image.reshape(-1, *image.shape[-3:]).contiguous(memory_format=torch.channels_last)
         x = x.float() / 255.0 if not torch.is_floating_point(x) else x
-        x = ((x - self.pixel_mean) / self.pixel_std).clamp(-self.clip, self.clip)
-        y = self.out(self.convs(x))
-        return y.reshape(*batch, -1)
+        return ((x - self.pixel_mean) / self.pixel_std).clamp(-self.clip, self.clip)
+
+    def forward(self, image: Tensor) -> Tensor:
+        y = self.out(self.convs(self._normalised(image)))
+        return y.reshape(*image.shape[:-3], -1)
+
+    def keypoints(self, image: Tensor) -> Tensor:
+        """The ``keypoints`` head's coordinates ``[*B, K, 2]`` (x right, y down, in [-1, 1] over the last feature
+        map's cells) of ``[*B, 3, H, W]`` images.
+
+        Raises:
+            ValueError: a coder with the ``flatten`` head.
+        """
+        if not isinstance(self.convs[-1], SpatialSoftmax):
+            raise ValueError("this image coder flattens its feature map (model.image_head=flatten): no keypoints")
+        return self.convs(self._normalised(image)).reshape(*image.shape[:-3], -1, 2)
 
 
 class EncoderNet(nn.Module):
