@@ -64,3 +64,23 @@ def test_the_head_is_chosen_by_the_config_and_an_unknown_one_is_named():
         ImageCoder((3, 64, 64), channels=8, out_dim=8, head="pooled")
     flat = ImageCoder((3, 64, 64), channels=8, out_dim=8)
     assert not any(isinstance(m, SpatialSoftmax) for m in flat.modules())
+
+
+def test_an_agent_with_keypoints_keeps_its_temperature_through_a_state_dict():
+    from torchrl_mpail2.agents import MPAIL2Agent
+    from torchrl_mpail2.envs import make_env
+
+    env = make_env("point_mass", obs="pixels", seed=0)
+    cfg = ModelConfig(latent_dim=16, hidden_dims=(32,), coder_dim=32, vector_coder_hidden=32, cnn_channels=8,
+                      horizon=3, image_head="keypoints", keypoints=4)
+    torch.manual_seed(0)
+    agent = MPAIL2Agent(env.observation_spec, env.action_spec, cfg)
+    softmax = next(m for m in agent.modules.modules() if isinstance(m, SpatialSoftmax))
+    with torch.no_grad():
+        softmax.log_temperature.fill_(-1.5)
+    torch.manual_seed(1)
+    other = MPAIL2Agent(env.observation_spec, env.action_spec, cfg)
+    other.load_state_dict(agent.state_dict())
+    td = env.reset()
+    torch.testing.assert_close(other.modules.encoder(td.clone())["z"], agent.modules.encoder(td.clone())["z"])
+    assert next(m for m in other.modules.modules() if isinstance(m, SpatialSoftmax)).log_temperature.item() == -1.5
