@@ -41,3 +41,11 @@ def test_a_flattening_coder_is_refused_naming_the_setting():
 
 def test_keypoint_pixels_span_the_receptive_field_centres_of_the_last_map():
     assert keypoint_pixels(torch.tensor([-1.0, 1.0]), map_size=5).tolist() == [15.0, 47.0]
+
+
+def test_a_target_that_stays_still_gets_no_probe_score():
+    agent = _pixel_agent("keypoints")
+    positions = torch.rand(50, 2) * 2.4 - 1.2
+    frames = TensorDict({IMAGE_KEY: draw_arena(positions, glow=0)}, [50])
+    result = keypoint_motion(agent, frames, {"still": torch.full((50, 3), 0.8), "position": positions})[IMAGE_KEY]
+    assert result["still"] is None and result["position"] is not None

@@ -7,7 +7,8 @@ Two sets of states, as :mod:`~torchrl_mpail2.diagnostics.latent_content` draws t
 held-out evaluation seeds (the cube placed anew, the arm about still) and ``--episodes`` fixed evaluation episodes
 played by the checkpoint's agent (the arm moves). Per camera and set: each keypoint's spread (the std of its image
 position over the states, in pixels, averaged over x and y) and how well a probe reads the cube's and the hand's
-positions from that camera's keypoints alone (``held_out_r2``, as in ``latent_content``). A camera whose keypoints
+positions from that camera's keypoints alone (``held_out_r2``, as in ``latent_content``; None where the target moved
+less than :data:`STILL_M` over the set, as the cube does in an episode that never touches it). A camera whose keypoints
 do not move over the resets does not see the cube; over played states they may follow the arm. ``--plot`` draws
 frames of both sets with each camera's keypoints on them, one colour per keypoint.
 
@@ -28,6 +29,10 @@ from torchrl_mpail2.diagnostics.latent_content import add_state_set_arguments, s
 from torchrl_mpail2.diagnostics.latent_probe import fit_latent_probe
 from torchrl_mpail2.modules.encoder import _CNN_KERNEL, _CNN_STRIDES, ImageCoder
 from torchrl_mpail2.modules.keypoints import SpatialSoftmax
+
+
+#: A target whose std over a set of states is below this (metres) stays still there: no probe score.
+STILL_M = 1e-3
 
 
 def keypoint_coders(agent) -> dict[str, ImageCoder]:
@@ -80,8 +85,8 @@ def keypoint_motion(agent, observations: TensorDictBase, targets: dict[str, Tens
         standardised = (flat - flat.mean(0)) / flat.std(0).clamp_min(1e-6)
         out[key] = {"keypoints": int(pixels.shape[1]), "mean_spread_px": float(spread.mean()),
                     "max_spread_px": float(spread.max()), "spread_px": [round(float(v), 3) for v in spread],
-                    **{name: fit_latent_probe(standardised, y.clone(), seed=seed)[1]["held_out_r2"]
-                       for name, y in targets.items()}}
+                    **{name: (fit_latent_probe(standardised, y.clone(), seed=seed)[1]["held_out_r2"]
+                              if float(y.std(0).max()) >= STILL_M else None) for name, y in targets.items()}}
     return out
 
 
