@@ -28,7 +28,6 @@ from torch import Tensor
 from torchrl_mpail2.diagnostics.latent_content import add_state_set_arguments, state_sets, write_result
 from torchrl_mpail2.diagnostics.latent_probe import fit_latent_probe
 from torchrl_mpail2.modules.encoder import _CNN_KERNEL, _CNN_STRIDES, ImageCoder
-from torchrl_mpail2.modules.keypoints import SpatialSoftmax
 
 
 #: A target whose std over a set of states is below this (metres) stays still there: no probe score.
@@ -43,7 +42,7 @@ def keypoint_coders(agent) -> dict[str, ImageCoder]:
     """
     net = agent.modules.encoder.net
     coders = {key: coder for key, coder in net.coders.items()
-              if isinstance(coder, ImageCoder) and isinstance(coder.convs[-1], SpatialSoftmax)}
+              if isinstance(coder, ImageCoder) and coder.head == "keypoints"}
     if not coders:
         raise ValueError("keypoint_map needs image coders with keypoints (model.image_head=keypoints); this "
                          f"checkpoint's image head is {agent.modules.cfg.image_head!r}")
@@ -67,19 +66,13 @@ def keypoint_pixels(coords: Tensor, map_size: int) -> Tensor:
     return first + (coords + 1) / 2 * (last - first)
 
 
-def _map_size(coder: ImageCoder) -> int:
-    with torch.no_grad():
-        maps = coder.convs[:-1](torch.zeros(1, *coder.pixel_mean.shape))
-    return int(maps.shape[-1])
-
-
 def keypoint_motion(agent, observations: TensorDictBase, targets: dict[str, Tensor], seed: int = 0) -> dict:
     """Per keypoint camera: the keypoints' spread in pixels over ``observations`` and the probes' ``held_out_r2`` of
     each target read from that camera's keypoints alone (see the module docstring)."""
     out = {}
     for key, coder in keypoint_coders(agent).items():
         with torch.no_grad():
-            pixels = keypoint_pixels(coder.keypoints(observations[key]), _map_size(coder))  # [N, K, 2]
+            pixels = keypoint_pixels(coder.keypoints(observations[key]), coder.map_size)  # [N, K, 2]
         spread = pixels.std(0).mean(-1)  # [K]
         flat = pixels.flatten(1)
         standardised = (flat - flat.mean(0)) / flat.std(0).clamp_min(1e-6)
@@ -100,11 +93,10 @@ def draw_keypoints(agent, frames: list[TensorDictBase], titles: list[str], path:
     coders = keypoint_coders(agent)
     fig, axes = plt.subplots(len(coders), len(frames), figsize=(2.4 * len(frames), 2.5 * len(coders)), squeeze=False)
     for row, (key, coder) in enumerate(coders.items()):
-        size = _map_size(coder)
         for col, (frame, title) in enumerate(zip(frames, titles)):
             image = frame[key]
             with torch.no_grad():
-                points = keypoint_pixels(coder.keypoints(image), size)
+                points = keypoint_pixels(coder.keypoints(image), coder.map_size)
             ax = axes[row][col]
             ax.imshow(image.permute(1, 2, 0).numpy() if image.dtype == torch.uint8 else image.permute(1, 2, 0).clamp(0, 1).numpy())
             ax.scatter(points[:, 0], points[:, 1], c=range(points.shape[0]), cmap="hsv", s=14, edgecolors="k",

@@ -71,7 +71,7 @@ class ImageCoder(nn.Module):
         super().__init__()
         if head not in IMAGE_HEADS:
             raise ValueError(f"unknown image coder head {head!r}; choose from {IMAGE_HEADS}")
-        self.clip = clip
+        self.clip, self.head = clip, head
         self.register_buffer("pixel_mean", torch.full(tuple(image_shape), 0.5))
         self.register_buffer("pixel_std", torch.ones(tuple(image_shape)))
         layers: list[nn.Module] = []
@@ -84,7 +84,9 @@ class ImageCoder(nn.Module):
         else:  # the keypoints of the last feature map: [K, h, w] -> [2K]
             self.convs = nn.Sequential(*layers, nn.Conv2d(channels, keypoints, 1), SpatialSoftmax())
         with torch.no_grad():
-            flat = self.convs(torch.zeros(1, *image_shape)).shape[-1]  # flatten: 800 for 64x64 inputs
+            maps = nn.Sequential(*layers)(torch.zeros(1, *image_shape))
+            flat = self.convs[len(layers):](maps).shape[-1]  # flatten: 800 for 64x64 inputs
+        self.map_size = int(maps.shape[-1])  #: side of the last feature map (5 for 64x64 inputs)
         self.out = nn.Sequential(nn.Linear(flat, out_dim), nn.SiLU())
         if init == "kaiming":
             for layer in (*self.convs, self.out[0]):
@@ -117,7 +119,7 @@ class ImageCoder(nn.Module):
         Raises:
             ValueError: a coder with the ``flatten`` head.
         """
-        if not isinstance(self.convs[-1], SpatialSoftmax):
+        if self.head != "keypoints":
             raise ValueError("this image coder flattens its feature map (model.image_head=flatten): no keypoints")
         return self.convs(self._normalised(image)).reshape(*image.shape[:-3], -1, 2)
 
