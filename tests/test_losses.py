@@ -355,3 +355,46 @@ def test_the_value_and_actor_losses_never_read_the_expert_observations(which):
     poisoned = replay_batch()
     poisoned["expert"] = poisoned["expert"].apply(lambda x: torch.full_like(x, float("nan")))
     assert torch.isfinite(cls(m.encoder, m.dynamics, m.reward, m.value, m.policy)(poisoned)[f"loss_{which}"])
+
+
+def test_imagined_branches_are_steps_of_noisy_policy_plans_through_the_dynamics():
+    m = tiny_modules()
+    loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, branch_fraction=0.5,
+                                 branch_noise=5.0)
+    z = torch.randn(8, 16)
+    torch.manual_seed(0)
+    z_b, a_b, z_b_next = loss.imagined_branches(z)
+    assert z_b.shape == (4, 16) and a_b.shape == (4, 2) and z_b_next.shape == (4, 16)
+    assert a_b.abs().max() <= 1.0 and (a_b.abs() == 1.0).any()  # large noise, clipped to the action box
+    torch.testing.assert_close(z_b_next, m.dynamics.module(z_b, a_b))  # one step of the model from z_b
+    assert LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy).imagined_branches(z) is None
+    with pytest.raises(ValueError, match="branch_fraction"):
+        LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, branch_fraction=-0.5)
+
+
+@pytest.mark.parametrize("mask_terminal", [False, True])
+def test_value_branches_join_the_regression_and_train_q_alone(mask_terminal):
+    m = tiny_modules()
+    cfg = LossConfig(value_branch_fraction=0.5, value_branch_noise=0.2, mask_terminal=mask_terminal)
+    loss = MPAIL2Loss(m, cfg).value_loss
+    assert (loss.branch_fraction, loss.branch_noise) == (0.5, 0.2)
+    batch = replay_batch(batch=4, steps=3)
+    batch["next", "terminated"][:, -1] = True
+    seen = []
+    target = loss.target
+
+    def recording_target(z, z_next, terminated=None):
+        seen.append((z.shape[0], None if terminated is None else terminated.reshape(-1).clone()))
+        return target(z, z_next, terminated)
+
+    loss.target = recording_target
+    loss(batch)["loss_value"].backward()
+    rows, terminated = seen[0]
+    assert rows == 12 + 6  # the 12 replayed transitions and round(0.5 * 12) imagined ones
+    if mask_terminal:
+        assert terminated[:12].sum() == 4 and not terminated[12:].any()  # imagined steps never terminate
+    assert _has_grad(m.value)
+    for other in (m.encoder, m.dynamics, m.reward, m.policy):
+        assert _no_grad(other)
+    with pytest.raises(ConfigError, match="value_branch_fraction"):
+        LossConfig(value_branch_fraction=-1.0)

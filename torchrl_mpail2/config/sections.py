@@ -138,6 +138,13 @@ class LossConfig:
     value_trains_encoder: bool = False
     """The value loss's gradient trains the encoder too (at ``encoder_lr``, in the value stage), as TD-MPC2's encoder
     learns from its value loss. False: the encoder learns from Eq. 2 alone, as in the paper and the authors' code."""
+    value_branch_fraction: float = 0.0
+    """Imagined branches in the value loss, as a share of its replayed transitions: from that many replay latents the
+    policy's plan with Gaussian noise (std ``value_branch_noise``) is rolled through the dynamics and one random step
+    of each path is regressed onto the same target, so that Q is fitted where the planner reads it and the replay holds
+    nothing (``LambdaReturnValueLoss.imagined_branches``). 0: replay only, as in the paper."""
+    value_branch_noise: float = 0.3
+    """Std of the noise on the policy's plan along the value's imagined branches (actions in [-1, 1])."""
     image_shift: int = 0
     """Random-shift augmentation of camera frames in every update stage: each frame moved by up to this many pixels
     per axis, its border repeated (``modules.augment.random_shift``; DrQ and TD-MPC2 use 4 at 64 x 64). 0: off, as in
@@ -148,7 +155,7 @@ class LossConfig:
         "reward_scale_momentum": Range(0.0, 1.0, high_open=True), "transitions_per_window": AT_LEAST_ONE,
         "tau": UNIT_INTERVAL, "init_alpha": POSITIVE,
         "target_entropy_per_step": FINITE, "lr": POSITIVE, "encoder_lr": POSITIVE, "alpha_lr": NON_NEGATIVE, "value_grad_clip": POSITIVE, "policy_grad_clip": POSITIVE,
-        "image_shift": NON_NEGATIVE,
+        "image_shift": NON_NEGATIVE, "value_branch_fraction": NON_NEGATIVE, "value_branch_noise": NON_NEGATIVE,
     }
 
     def __post_init__(self) -> None:

@@ -58,7 +58,9 @@ class MPAIL2Loss(StagedLoss):
         self.value_loss = LambdaReturnValueLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                                 lmbda=cfg.lmbda, return_form=cfg.return_form,
                                                 mask_terminal=cfg.mask_terminal, head_reduce=cfg.value_head_reduce,
-                                                encoder_grad=cfg.value_trains_encoder)
+                                                encoder_grad=cfg.value_trains_encoder,
+                                                branch_fraction=cfg.value_branch_fraction,
+                                                branch_noise=cfg.value_branch_noise)
         self.actor_loss = MultiStepActorLoss(m.encoder, m.dynamics, m.reward, m.value, m.policy, gamma=cfg.gamma,
                                              lmbda=cfg.lmbda, return_form=cfg.return_form, q_reduce=cfg.actor_q_reduce,
                                              init_alpha=cfg.init_alpha,
