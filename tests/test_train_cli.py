@@ -70,6 +70,7 @@ def test_the_cpu_camera_presets_are_their_state_presets_with_cameras_batch_64_an
         assert got["train"]["utd"] == want["train"]["utd"] == 1.0  # Table 4's UTD, as the state presets have it
         # the raw critic with a penalty of 10, as lift_state has it
         assert (got["loss"].pop("reward_scale_momentum"), got["loss"].pop("gp_coef")) == (None, 10.0)
+        assert (got["model"].pop("image_head"), want["model"].pop("image_head")) == ("keypoints", "flatten")
         for section, key in (("train", "obs"), ("train", "batch_size"),
                              ("loss", "reward_scale_momentum"), ("loss", "gp_coef")):
             want[section].pop(key)
