@@ -124,20 +124,16 @@ class LambdaReturnValueLoss(MPAIL2LossBase):
         action = self.require(tensordict, self.tensor_keys.action)
         action = action.reshape(-1, action.shape[-1])
         terminated = self.require(tensordict, self.tensor_keys.terminated) if self.mask_terminal else None
-        if self.encoder_grad:
-            z_online = self.encode(tensordict).reshape(-1, z.shape[-1])
+        z_fit = self.encode(tensordict).reshape(-1, z.shape[-1]) if self.encoder_grad else z  # Q's input
         branches = self.imagined_branches(z)
         if branches is not None:
             z_b, a_b, z_b_next = branches
-            z, action, z_next = torch.cat([z, z_b]), torch.cat([action, a_b.to(action.dtype)]), torch.cat([z_next, z_b_next])
+            z, z_fit, z_next = torch.cat([z, z_b]), torch.cat([z_fit, z_b]), torch.cat([z_next, z_b_next])
+            action = torch.cat([action, a_b.to(action.dtype)])
             if terminated is not None:  # imagined steps never terminate
                 terminated = torch.cat([terminated.reshape(-1), terminated.new_zeros(z_b.shape[0])])
-            if self.encoder_grad:
-                z_online = torch.cat([z_online, z_b])
         y, r = self.target(z, z_next, terminated)
-        if self.encoder_grad:
-            z = z_online
-        q = self.qvalue_network.net(z, action).squeeze(-1)  # [E, M]
+        q = self.qvalue_network.net(z_fit, action).squeeze(-1)  # [E, M]
         errors = (q - y).pow(2)  # [E, M]: each head regresses independently
         loss = self.reduce(errors.sum(0) if self.head_reduce == "sum" else errors.mean(0))
         return TensorDict({"loss_value": loss, "q_mean": q.detach().mean(), "q_target_mean": y.mean(),
