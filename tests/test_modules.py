@@ -244,6 +244,24 @@ def test_image_coder_channels_last_computes_the_plain_cnn():
         torch.testing.assert_close(g, w, rtol=1e-4, atol=1e-6)
 
 
+def test_image_coder_standardises_in_one_pass_as_the_written_out_formula():
+    """clip((x / 255 - mu) / sigma) per pixel, for uint8 and float [0, 1] frames, with demonstration statistics that
+    make the clip bite: the fused pass x * a + b gives the same frames up to float rounding, channels-last."""
+    from torchrl_mpail2.modules.encoder import ImageCoder
+
+    torch.manual_seed(0)
+    coder = ImageCoder((3, 32, 32), 4, 6, clip=2.0)
+    coder.pixel_mean.copy_(torch.rand(3, 32, 32))
+    coder.pixel_std.copy_(torch.rand(3, 32, 32) * 0.2 + 0.05)
+    images = torch.randint(0, 256, (2, 3, 3, 32, 32), dtype=torch.uint8)
+    want = ((images.reshape(-1, 3, 32, 32).float() / 255.0 - coder.pixel_mean) / coder.pixel_std).clamp(-2.0, 2.0)
+    for frames in (images, images.float() / 255.0):
+        got = coder._normalised(frames)
+        assert got.dtype == torch.float32 and got.is_contiguous(memory_format=torch.channels_last)
+        assert (got.abs() == 2.0).any() and (got.abs() < 2.0).any()  # the clip bites on some pixels, not all
+        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+
+
 def test_image_coder_loads_a_state_dict_from_before_the_pixel_statistics_as_centred():
     from torchrl_mpail2.modules.encoder import ImageCoder
 

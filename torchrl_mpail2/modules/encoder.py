@@ -103,10 +103,21 @@ class ImageCoder(nn.Module):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def _normalised(self, image: Tensor) -> Tensor:
-        """``[*B, 3, H, W]`` -> ``[N, 3, H, W]`` channels-last, standardised and clipped."""
+        """``[*B, 3, H, W]`` -> ``[N, 3, H, W]`` channels-last, standardised and clipped.
+
+        :math:`\operatorname{clip}((x / 255 - \mu) / \sigma) = \operatorname{clip}(x \cdot a + b)` with
+        :math:`a = 1 / (255\,\sigma)` and :math:`b = -\mu / \sigma` per pixel: one fused pass over the frames
+        after their conversion to float, rather than four (a fifth of an update's time on the camera presets went to
+        these passes; ``tests/test_modules.py`` holds the two forms equal up to float rounding).
+        """
         x = image.reshape(-1, *image.shape[-3:]).contiguous(memory_format=torch.channels_last)
-        x = x.float() / 255.0 if not torch.is_floating_point(x) else x
-        return ((x - self.pixel_mean) / self.pixel_std).clamp(-self.clip, self.clip)
+        scale = self.pixel_std.reciprocal()
+        if not torch.is_floating_point(x):
+            x, scale = x.float(), scale / 255.0
+        # per-pixel factors laid out as the frames are, so that the fused pass runs over contiguous memory
+        scale = scale.unsqueeze(0).contiguous(memory_format=torch.channels_last)
+        shift = (-self.pixel_mean / self.pixel_std).unsqueeze(0).contiguous(memory_format=torch.channels_last)
+        return torch.addcmul(shift, x, scale).clamp_(-self.clip, self.clip)
 
     def forward(self, image: Tensor) -> Tensor:
         y = self.out(self.convs(self._normalised(image)))
