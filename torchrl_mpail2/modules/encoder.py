@@ -103,7 +103,7 @@ class ImageCoder(nn.Module):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def _normalised(self, image: Tensor) -> Tensor:
-        """``[*B, 3, H, W]`` -> ``[N, 3, H, W]`` channels-last, standardised and clipped.
+        r"""``[*B, 3, H, W]`` -> ``[N, 3, H, W]`` channels-last, standardised and clipped.
 
         :math:`\operatorname{clip}((x / 255 - \mu) / \sigma) = \operatorname{clip}(x \cdot a + b)` with
         :math:`a = 1 / (255\,\sigma)` and :math:`b = -\mu / \sigma` per pixel: one fused pass over the frames
