@@ -15,11 +15,10 @@ these tasks never terminate) and ``"truncated"`` (True at the horizon).
 
 from __future__ import annotations
 
-import os
-
-# robosuite picks its GL backend once, when it is first imported; EGL renders headless on the CPU (Mesa),
-# osmesa does not work with this stack.
-os.environ.setdefault("MUJOCO_GL", "egl")
+# first: it chooses robosuite's GL backend, which robosuite reads once, when it is first imported
+from torchrl_mpail2.envs.robosuite_render import (  # isort: skip
+    adopt_renderer, check_renderer, make_renderer_current, release_renderer, use_light_renderer,
+)
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
@@ -36,7 +35,6 @@ from torchrl_mpail2.envs.robosuite_observations import (  # noqa: E402
     EXTERNAL_CAMERA, IMAGE_SIZE, PROPRIO_DIM, WRIST_CAMERA, object_vector, proprio_vector,
     upright_chw,
 )
-from torchrl_mpail2.envs.robosuite_render import check_renderer, make_renderer_current, use_light_renderer  # noqa: E402
 from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
     CONTROL_FREQ_HZ, GRIPPER_CLOSED, MAX_EEF_DELTA, OSC_POSITION_ARM, binary_gripper_state, check_control_settings,
     position_command,
@@ -155,7 +153,9 @@ class RobosuiteEnv(EnvBase):
         self._make_specs()
 
     def _configure_renderer(self) -> None:
-        """The light renderer for the cameras (robosuite builds a context with its full settings with each model)."""
+        """The light renderer for the cameras (robosuite builds a context with its full settings with each model);
+        either renderer's context is released in its own GL context when collected."""
+        adopt_renderer(self._sim_env.sim)
         if self._cameras and self.renderer == "light":
             use_light_renderer(self._sim_env.sim, IMAGE_SIZE)
 
@@ -183,8 +183,10 @@ class RobosuiteEnv(EnvBase):
         self.done_spec = Composite(done=flag, terminated=flag.clone(), truncated=flag.clone(), device=self.device)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
-        """Close the env and release robosuite's offscreen renderer, if any."""
-        if not self.is_closed:
+        """Close the env and release robosuite's offscreen renderer, if any, at once and in its own GL context
+        (:func:`~torchrl_mpail2.envs.robosuite_render.release_renderer`)."""
+        if self._sim_env.sim is not None:  # torchrl counts an env never reset as closed; robosuite's is open
+            release_renderer(self._sim_env.sim)
             self._sim_env.close()
         super().close(raise_if_closed=raise_if_closed)
 
@@ -245,6 +247,7 @@ class RobosuiteEnv(EnvBase):
 
     def load_model_xml(self, xml: str) -> None:
         """Rebuilds the simulation from a recorded MJCF model (robosuite's ``model_file``: the recorded cube size)."""
+        release_renderer(self._sim_env.sim)  # robosuite drops the old sim and builds a new context
         self._sim_env.reset_from_xml_string(xml)
         self._configure_renderer()
         self.reset_gripper_command()

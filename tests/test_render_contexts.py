@@ -1,0 +1,64 @@
+"""robosuite's offscreen GL contexts are freed in their own GL context: building, closing or garbage-collecting one
+camera env never changes the frames of another env in the same process."""
+from __future__ import annotations
+
+import gc
+
+import pytest
+import torch
+
+pytest.importorskip("robosuite")
+
+from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv  # noqa: E402
+from torchrl_mpail2.envs.robosuite_render import make_renderer_current  # noqa: E402
+
+IMAGE_KEYS = ("external_image", "wrist_image")
+
+
+def _reset_frames(env, seed=3):
+    env.set_seed(seed)
+    td = env.reset()
+    return {key: td[key] for key in IMAGE_KEYS}
+
+
+def _assert_same(frames, expected, when):
+    for key in IMAGE_KEYS:
+        assert torch.equal(frames[key], expected[key]), f"{key} changed {when}"
+
+
+@pytest.mark.parametrize("renderer", ["light", "full"])
+def test_closing_or_collecting_another_env_leaves_this_envs_frames_unchanged(renderer):
+    env = RobosuiteEnv("Push", obs="pixels", seed=3, renderer=renderer)
+    try:
+        expected = _reset_frames(env)
+        # closed and dropped before this env renders again: robosuite frees a context only when it is collected,
+        # and mujoco frees a context's buffers in whichever GL context is current then
+        closed = RobosuiteEnv("Push", obs="pixels", seed=4, renderer=renderer)
+        closed.reset()
+        closed.close()
+        del closed
+        _reset_frames(env)
+        gc.collect()
+        _assert_same(_reset_frames(env), expected, "after another env was closed and collected")
+
+        # never closed, collected in the middle of this env's step: after this env claimed its context and before
+        # robosuite renders through it
+        dropped = RobosuiteEnv("Push", obs="pixels", seed=5, renderer=renderer)
+        dropped.reset()
+        _reset_frames(env)
+        make_renderer_current(env.sim_env.sim)
+        del dropped
+        gc.collect()
+        raw = env.sim_env._get_observations(force_update=True)  # robosuite's own render, no context claimed
+        _assert_same({key: env._observation_td(raw)[key] for key in IMAGE_KEYS}, expected,
+                     "when another env was collected between claiming the context and rendering")
+        _assert_same(_reset_frames(env), expected, "after another env was collected")
+    finally:
+        env.close()
+
+
+def test_a_closed_env_releases_its_gl_context_at_once():
+    env = RobosuiteEnv("Push", obs="pixels", seed=3)
+    context = env.sim_env.sim._render_context_offscreen
+    env.close()
+    assert context.gl_ctx is None  # freed by close, not left to the garbage collector
