@@ -62,3 +62,27 @@ def test_a_closed_env_releases_its_gl_context_at_once():
     context = env.sim_env.sim._render_context_offscreen
     env.close()
     assert context.gl_ctx is None  # freed by close, not left to the garbage collector
+
+
+def test_a_trainer_that_recorded_its_demonstrations_renders_the_same_frames_after_a_collection(tmp_path):
+    """The env that records the scripted demonstrations is dropped once they are saved; before the fix, collecting it
+    (at about the sixth episode of a camera run) left the training env reading noise for the rest of the run."""
+    from conftest import QUIET_RUN
+    from torchrl_mpail2.envs.robosuite_env import robosuite_base
+    from torchrl_mpail2.trainers import MPAIL2Trainer, apply_overrides, preset
+
+    cfg = apply_overrides(preset("push_pixels"), [*QUIET_RUN, "train.num_demos=1", "model.latent_dim=16",
+                                                  "model.hidden_dims=32,32", "model.coder_dim=32"])
+    gc.disable()  # the recorder is collected below, once the training env renders, as in a run
+    try:
+        trainer = MPAIL2Trainer(cfg, run_dir=tmp_path / "run")  # records one demonstration in this process
+        env = robosuite_base(trainer.env)
+        expected = _reset_frames(env, seed=0)
+    finally:
+        gc.enable()
+    try:
+        gc.collect()
+        _assert_same(_reset_frames(env, seed=0), expected, "after the demonstration recorder was collected")
+    finally:
+        env.close()
+        trainer.close()
