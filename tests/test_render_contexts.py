@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 
+import numpy as np
 import pytest
 import torch
 
@@ -86,3 +87,22 @@ def test_a_trainer_that_recorded_its_demonstrations_renders_the_same_frames_afte
     finally:
         env.close()
         trainer.close()
+
+
+def test_a_frame_that_is_no_render_is_rendered_again_and_a_camera_that_fails_twice_is_named(monkeypatch):
+    env = RobosuiteEnv("Push", obs="pixels", seed=3)
+    try:
+        expected = _reset_frames(env)
+        sim_obs = env.sim_env._get_observations(force_update=True)
+        rng = np.random.default_rng(0)
+        noise = rng.integers(0, 256, sim_obs["agentview_image"].shape, dtype=np.uint8)
+        with pytest.warns(RuntimeWarning, match="external_image"):
+            td = env._observation_td({**sim_obs, "agentview_image": noise})  # a failed read: rendered again
+        _assert_same({key: td[key] for key in IMAGE_KEYS}, expected, "after a failed read was rendered again")
+        black = np.zeros_like(noise)
+        monkeypatch.setattr(env.sim_env, "_get_observations", lambda force_update=False: {
+            **sim_obs, "robot0_eye_in_hand_image": rng.integers(0, 256, noise.shape, dtype=np.uint8)})
+        with pytest.raises(RuntimeError, match="'robot0_eye_in_hand'.*no render twice"):
+            env._observation_td({**sim_obs, "robot0_eye_in_hand_image": black})
+    finally:
+        env.close()

@@ -8,8 +8,9 @@ A frame is flagged when its roughness, the mean absolute difference of horizonta
 
 .. math:: \rho = \frac{1}{3 H (W - 1)} \sum_{c, y, x} |I_{c, y, x + 1} - I_{c, y, x}|,
 
-exceeds :data:`NOISE_ROUGHNESS` (rendered 64 x 64 frames of Lift and Push: at most about 12; uniform noise: about 85),
-or when more than :data:`BLACK_FRACTION` of its pixels are black (a render of these scenes has almost none). A frame
+exceeds ``NOISE_ROUGHNESS`` (rendered 64 x 64 frames of Lift and Push: at most about 12; uniform noise: about 85),
+or when more than ``BLACK_FRACTION`` of its pixels are black (a render of these scenes has almost none): the check
+of :func:`~torchrl_mpail2.envs.robosuite_observations.unrendered`, which the robosuite envs run on every frame. A frame
 read from a GL context that rendered nothing is whatever the buffer held: noise, black, or an old frame; the last
 passes this check, so the counts are a lower bound. Episodes are counted from the replay's ``is_init`` flags.
 """
@@ -19,15 +20,12 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-#: Roughness above which a frame is noise (see the module docstring).
-NOISE_ROUGHNESS = 30.0
-#: A frame with more than this fraction of black pixels is no render of the scene.
-BLACK_FRACTION = 0.5
-
+from torchrl_mpail2.envs.robosuite_observations import unrendered
 
 def storage_path(path: str | Path) -> Path:
     """The replay storage folder of a run folder or a checkpoint folder.
@@ -43,11 +41,9 @@ def storage_path(path: str | Path) -> Path:
 
 
 def broken_frames(frames: Tensor) -> Tensor:
-    """``[N, 3, H, W]`` uint8 frames -> ``[N]`` bool: noise or mostly black (see the module docstring)."""
-    x = frames.float()
-    roughness = (x[..., 1:] - x[..., :-1]).abs().mean(dim=(1, 2, 3))
-    black = (frames == 0).all(1).float().mean(dim=(1, 2))
-    return (roughness > NOISE_ROUGHNESS) | (black > BLACK_FRACTION)
+    """``[N, 3, H, W]`` uint8 frames -> ``[N]`` bool: noise or mostly black
+    (:func:`~torchrl_mpail2.envs.robosuite_observations.unrendered`)."""
+    return torch.from_numpy(np.asarray(unrendered(frames.numpy()))).reshape(frames.shape[0])
 
 
 def frame_report(path: str | Path) -> dict:

@@ -15,6 +15,8 @@ these tasks never terminate) and ``"truncated"`` (True at the horizon).
 
 from __future__ import annotations
 
+import warnings
+
 # first: it chooses robosuite's GL backend, which robosuite reads once, when it is first imported
 from torchrl_mpail2.envs.robosuite_render import (  # isort: skip
     adopt_renderer, check_renderer, make_renderer_current, release_renderer, use_light_renderer,
@@ -33,7 +35,7 @@ from torchrl_mpail2.envs.names import obs_modes_of  # noqa: E402
 from torchrl_mpail2.envs.names import ROBOSUITE_TASKS  # noqa: E402
 from torchrl_mpail2.envs.robosuite_observations import (  # noqa: E402
     EXTERNAL_CAMERA, IMAGE_SIZE, PROPRIO_DIM, WRIST_CAMERA, object_vector, proprio_vector,
-    upright_chw,
+    unrendered, upright_chw,
 )
 from torchrl_mpail2.envs.robosuite_control import (  # noqa: E402
     CONTROL_FREQ_HZ, GRIPPER_CLOSED, MAX_EEF_DELTA, OSC_POSITION_ARM, binary_gripper_state, check_control_settings,
@@ -351,14 +353,39 @@ class RobosuiteEnv(EnvBase):
         if self.obs_mode == "state":
             out["object"] = self.object_observation()
         if self.obs_mode in ("pixels", "external_pixels"):
-            out["external_image"] = upright_chw(sim_obs[f"{EXTERNAL_CAMERA}_image"])
-        if self.obs_mode == "pixels":
-            out["wrist_image"] = upright_chw(sim_obs[f"{WRIST_CAMERA}_image"])
+            out.update(self._camera_frames(sim_obs))
         # the TensorDict names its device: transforms such as TensorDictPrimer build their reset masks on it
         return TensorDict(
             {key: torch.as_tensor(value, device=self.device) for key, value in out.items()}, batch_size=[],
             device=self.device,
         )
+
+
+    def _camera_frames(self, sim_obs: dict) -> dict[str, np.ndarray]:
+        """The upright camera frames of ``sim_obs``, each checked to be a render
+        (:func:`~torchrl_mpail2.envs.robosuite_observations.unrendered`). Where one is not, the cameras render the
+        same state again in this env's own GL context: a frame that comes back the same was a render after all; one
+        that comes back otherwise was a failed read, replaced by the new render, with a warning.
+
+        Raises:
+            RuntimeError: a camera failed to render twice running (naming the camera).
+        """
+        keys = {"external_image": EXTERNAL_CAMERA, **({"wrist_image": WRIST_CAMERA} if self.obs_mode == "pixels" else {})}
+        frames = {key: upright_chw(sim_obs[f"{camera}_image"]) for key, camera in keys.items()}
+        if not any(unrendered(frame) for frame in frames.values()):
+            return frames
+        make_renderer_current(self._sim_env.sim)
+        again = self._sim_env._get_observations(force_update=True)
+        redone = {key: upright_chw(again[f"{camera}_image"]) for key, camera in keys.items()}
+        for key, camera in keys.items():
+            if unrendered(redone[key]) and not np.array_equal(redone[key], frames[key]):
+                raise RuntimeError(f"robosuite camera {camera!r} ({key!r}) returned no render twice running (noise or "
+                                   "black frames): its GL context lost its buffers")
+        failed = [key for key in keys if not np.array_equal(redone[key], frames[key])]
+        if failed:
+            warnings.warn(f"robosuite camera frames {failed} were no render (a failed GL read); rendered again",
+                          RuntimeWarning, stacklevel=2)
+        return redone
 
 
 def robosuite_base(env) -> RobosuiteEnv | None:
