@@ -1,3 +1,5 @@
+import os
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -16,6 +18,14 @@ def _own_working_directory(tmp_path, monkeypatch):
     """Each test runs in its own folder: what a run writes relative to the working directory (the scripted-demo cache
     ``demos/``, default run folders) lands there, never in the checkout, and no two tests share it."""
     monkeypatch.chdir(tmp_path)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist each test process takes its share of the cores for torch's threads, so that the processes
+    do not oversubscribe them."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))
+    if workers > 1:
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
 
 
 @pytest.fixture(autouse=True)
