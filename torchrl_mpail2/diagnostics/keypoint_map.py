@@ -25,6 +25,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import Tensor
 
+from torchrl_mpail2.diagnostics.figures import save_figure
 from torchrl_mpail2.diagnostics.latent_content import add_state_set_arguments, state_sets, write_result
 from torchrl_mpail2.diagnostics.latent_probe import fit_latent_probe
 from torchrl_mpail2.modules.encoder import _CNN_KERNEL, _CNN_STRIDES, ImageCoder
@@ -104,12 +105,7 @@ def draw_keypoints(agent, frames: list[TensorDictBase], titles: list[str], path:
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_title(f"{key}: {title}" if col == 0 else title, fontsize=7)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> dict:

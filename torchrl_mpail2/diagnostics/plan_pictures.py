@@ -11,6 +11,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
+from torchrl_mpail2.diagnostics.figures import save_figure
 from torchrl_mpail2.diagnostics.latent_probe import LatentProbe, fit_latent_probe
 from torchrl_mpail2.trainers.evaluation import (episode_outcome, evaluate_episodes, evaluation_env, evaluation_seeds,
                                                 run_eval_seed)
@@ -87,9 +88,7 @@ def _draw_episode(agent, probe, episode: TensorDictBase, latents: torch.Tensor, 
     axes[0][0].set_xlabel(labels[0])
     axes[0][0].set_ylabel(labels[1])
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def draw_plan_pictures(agent, env, seeds: list[int], out_dir: str | Path, *, position_key: str,

@@ -25,6 +25,7 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
+from torchrl_mpail2.diagnostics.figures import save_figure
 from torchrl_mpail2.envs.robosuite_observations import unrendered
 
 def storage_path(path: str | Path) -> Path:
@@ -88,12 +89,7 @@ def draw_frames(path: str | Path, indices: list[int], out: str | Path, key: str 
         ax.set_title(f"episode {int(episode[index])}\nstep {int(td['next', 'step_count'][index])}{flag}", fontsize=7)
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out)
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -9,6 +9,8 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
+from torchrl_mpail2.diagnostics.figures import save_figure
+
 __all__ = ["draw_reward_value_maps", "report_map", "staying_reward_and_value"]
 
 
@@ -40,11 +42,7 @@ def draw_reward_value_maps(result: dict, path: Path, extent: tuple[float, float,
     if decorate is not None:
         decorate(axes)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def report_map(result: dict, out: Path | None, plot: Path | None, draw) -> dict:
