@@ -360,7 +360,6 @@ class RobosuiteEnv(EnvBase):
             device=self.device,
         )
 
-
     def _camera_frames(self, sim_obs: dict) -> dict[str, np.ndarray]:
         """The upright camera frames of ``sim_obs``, each checked to be a render
         (:func:`~torchrl_mpail2.envs.robosuite_observations.unrendered`). Where one is not, the cameras render the
