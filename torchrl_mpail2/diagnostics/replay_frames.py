@@ -28,17 +28,18 @@ from torch import Tensor
 from torchrl_mpail2.diagnostics.figures import save_figure
 from torchrl_mpail2.envs.robosuite_observations import unrendered
 
+
 def storage_path(path: str | Path) -> Path:
     """The replay storage folder of a run folder or a checkpoint folder.
 
     Raises:
-        FileNotFoundError: neither ``replay_storage`` nor ``replay/storage`` is under ``path``.
+        FileNotFoundError: neither ``path`` nor its ``replay_storage`` or ``replay/storage`` holds a storage.
     """
     path = Path(path)
     for candidate in (path / "replay_storage", path / "replay" / "storage", path):
         if (candidate / "meta.json").exists():
             return candidate
-    raise FileNotFoundError(f"{path}: no replay storage (looked for replay_storage/ and replay/storage/)")
+    raise FileNotFoundError(f"{path}: no replay storage (looked for replay_storage/, replay/storage/ and the folder itself)")
 
 
 def broken_frames(frames: Tensor) -> Tensor:
