@@ -359,6 +359,35 @@ def test_a_runs_cached_demos_record_the_env_options_not_the_experts():
     assert load_demos(run_demos.default_demo_dir(cfg)).header["env_kwargs"] == {"obs": "state"}
 
 
+def test_the_demo_recorder_env_is_closed_after_recording_and_the_training_env_is_not():
+    """A dropped recorder env would free its simulator (and a robosuite GL context) only at some later garbage
+    collection; it is closed as soon as the demonstrations are recorded. An env_fn that hands back the training env
+    itself leaves it open."""
+    from torchrl_mpail2.trainers import apply_overrides, preset
+    from torchrl_mpail2.trainers import run_demos
+
+    closed = []
+
+    def tracked(env):
+        real_close = env.close
+        env.close = lambda *a, **k: (closed.append(env), real_close(*a, **k))[1]
+        return env
+
+    made = []
+
+    def env_fn(seed=0):
+        made.append(tracked(make_env("point_mass", seed=seed)))
+        return made[-1]
+
+    cfg = apply_overrides(preset("point_mass"), ["train.num_demos=1", "train.progress=false", "train.seed=11"])
+    env = tracked(make_env("point_mass"))
+    run_demos.load_or_record_demos(cfg, env, env_fn)
+    assert len(made) == 1 and closed == made
+    cfg = apply_overrides(cfg, ["train.seed=12"])
+    run_demos.load_or_record_demos(cfg, env, lambda seed=0: env)
+    assert closed == made
+
+
 def test_gym_demo_cache_names_its_expert_file_so_a_new_expert_records_anew(tmp_path, monkeypatch):
     import torchrl_mpail2.experts.gym as gym_experts
     from torchrl_mpail2.trainers import apply_overrides, preset

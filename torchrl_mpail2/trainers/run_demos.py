@@ -54,9 +54,15 @@ def load_or_record_demos(cfg: ExperimentConfig, env: EnvBase, env_fn: Callable) 
     expert_options = {"seed": seed, **t.expert_kwargs} if t.expert_kwargs else {}
     expert = get_expert(t.env, demo_env, **expert_options)
     log.info("recording %d scripted demonstrations into %s", t.num_demos, path)
-    demos = record_demos(demo_env, expert, t.num_demos, seed=seed, progress=t.progress,
-                         steps_after_success=t.demo_steps_after_success,
-                         env_id=t.env, env_kwargs=options)
+    try:
+        demos = record_demos(demo_env, expert, t.num_demos, seed=seed, progress=t.progress,
+                             steps_after_success=t.demo_steps_after_success,
+                             env_id=t.env, env_kwargs=options)
+    finally:
+        # free the recorder's simulator and GL context now rather than at some later garbage collection; an env_fn
+        # that hands back the training env itself keeps it open
+        if demo_env is not env:
+            demo_env.close()
     try:
         save_demos(demos, path)
     except FileExistsError:
