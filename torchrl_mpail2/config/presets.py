@@ -120,11 +120,11 @@ PRESETS: dict[str, Preset] = {
         "``push_state`` from both 64 x 64 cameras and proprioception, sized for a CPU: the state presets' latent (128, "
         "not Table 4's 512 for images: planning costs a quarter), batch 64 (an update encodes B x (H + 1) frames per "
         "camera for the dynamics targets alone; at batch 64 it took 0.44 s on one thread of a 2-core AMD EPYC against "
-        "1.6 s at 256 and 2.2 s for Table 4's networks at 256) with Table 4's UTD of 1 (UTD 0.5, the preset before, "
-        "scored 0.20 and 0.40 at episode 50 on seeds 0 and 1 where UTD 1 scored 1.00 and 0.95), and Lift's reward: the "
-        "raw critic with a gradient penalty of 10 (docs/results/cameras.md), and an image coder that ends in spatial "
-        "soft-argmax keypoints (``model.image_head=keypoints``; Fig. 14 flattens its last map): on the two seeds where "
-        "the flattened coder pushed nothing at 100 (0.00 and 0.00 on 50 held-out episodes) it scored 0.30 and 0.70. "
+        "1.6 s at 256 and 2.2 s for Table 4's networks at 256) with Table 4's UTD of 1, Lift's reward (the "
+        "raw critic with a gradient penalty of 10) and an image coder that ends in spatial soft-argmax keypoints "
+        "(``model.image_head=keypoints``; Fig. 14 flattens its last map). The Push runs that chose UTD, reward and "
+        "coder read noise instead of frames from about their sixth episode (a GL bug fixed in 173557c), so those "
+        "choices rest on the point mass until Push is measured again (docs/results/cameras.md). "
         "``auto`` precision keeps its updates in "
         "float32 on every CPU (images: :func:`~torchrl_mpail2.config.resolve_update_precision`).",
         {**PUSH_STATE, **PIXELS}),
