@@ -124,7 +124,8 @@ PRESETS: dict[str, Preset] = {
         "raw critic with a gradient penalty of 10) and an image coder that ends in spatial soft-argmax keypoints "
         "(``model.image_head=keypoints``; Fig. 14 flattens its last map). The Push runs that chose UTD, reward and "
         "coder read noise instead of frames from about their sixth episode (a GL bug fixed in 173557c), so those "
-        "choices rest on the point mass until Push is measured again (docs/results/cameras.md). "
+        "choices rest on the point mass; on real frames the preset scores 0.82 (0.74 and 0.90) on 50 held-out "
+        "episodes at 100, seeds 0 and 1 (docs/results/cameras.md). "
         "``auto`` precision keeps its updates in "
         "float32 on every CPU (images: :func:`~torchrl_mpail2.config.resolve_update_precision`).",
         {**PUSH_STATE, **PIXELS}),
