@@ -92,7 +92,7 @@ def test_a_seed_a_stop_signal_ended_resumes_is_unfinished_and_is_not_scored_held
     (run / "summary.json").write_text(json.dumps({"wall_time_s": 60.0, "stopped_by": "SIGTERM"}))
     assert bench.summarize("demo", tmp_path)["per_seed"][0]["finished"] is False
     played = []
-    monkeypatch.setattr(bench.subprocess, "run", lambda cmd, **kw: played.append(cmd))
+    monkeypatch.setattr(bench.subprocess, "Popen", lambda cmd, **kw: played.append(cmd))
     bench.score_held_out(type("Args", (), {"held_out": 50})(), [(0, run)])
     assert played == []  # half an hour a checkpoint on cameras, for a seed that is not done
     args = type("Args", (), {"episodes": 300, "extend_min": 0.0})()
@@ -101,6 +101,37 @@ def test_a_seed_a_stop_signal_ended_resumes_is_unfinished_and_is_not_scored_held
     (run / "summary.json").write_text("{torn")
     with pytest.raises(SystemExit, match="summary.json is not valid JSON"):
         bench.seed_command(run, 0, args, [])
+
+
+def test_finished_seeds_are_scored_held_out_parallel_at_a_time(bench, tmp_path, monkeypatch, capsys):
+    """Scoring 50 held-out episodes takes a camera seed about 17 minutes on one thread: with --parallel 2, two seeds
+    score side by side instead of one after the other, and a third waits for the first to end."""
+    events = []
+
+    class FakeScoring:
+        def __init__(self, cmd, **kwargs):
+            self.seed = Path(cmd[3]).name
+            events.append(("start", self.seed))
+
+        def wait(self):
+            events.append(("end", self.seed))
+            return 1 if self.seed == "seed2" else 0
+
+    runs = []
+    for seed in (0, 1, 2):
+        _fake_seed(tmp_path, seed, [(50, 0.4, 0.2), (100, 0.8, 0.8)], episodes=100)
+        run = tmp_path / "demo" / f"seed{seed}"
+        (run / "checkpoints").mkdir(exist_ok=True)
+        runs.append((seed, run))
+    monkeypatch.setattr(bench.subprocess, "Popen", FakeScoring)
+    bench.score_held_out(type("Args", (), {"held_out": 50, "parallel": 2})(), runs)
+    assert events == [("start", "seed0"), ("start", "seed1"), ("end", "seed0"), ("start", "seed2"),
+                      ("end", "seed1"), ("end", "seed2")]
+    assert "seed 2: held-out scoring exited with 1" in capsys.readouterr().out
+    events.clear()
+    bench.score_held_out(type("Args", (), {"held_out": 50, "parallel": 1})(), runs)
+    assert events == [("start", "seed0"), ("end", "seed0"), ("start", "seed1"), ("end", "seed1"),
+                      ("start", "seed2"), ("end", "seed2")]
 
 
 def test_child_processes_import_the_checkout_first_and_keep_the_callers_path(bench, monkeypatch):

@@ -117,19 +117,31 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
 
 def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
-    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread; a score already
-    in the run's ``checkpoint_evals.json`` is reused)."""
+    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread each, ``--parallel``
+    seeds at a time; a score already in the run's ``checkpoint_evals.json`` is reused)."""
     if not args.held_out:
         return
+    running: list[tuple[int, Path, subprocess.Popen, object]] = []
+
+    def wait_oldest() -> None:
+        seed, run_dir, proc, log = running.pop(0)
+        code = proc.wait()
+        log.close()
+        if code != 0:
+            print(f"seed {seed}: held-out scoring exited with {code}\n{log_tail(run_dir.parent / f'seed{seed}.log')}")
+
     for seed, run_dir in seeds:
         if not finished(read_summary(run_dir)) or not (run_dir / "checkpoints").exists():
             continue  # held-out scores are for finished seeds only
+        if len(running) >= max(1, getattr(args, "parallel", 1)):
+            wait_oldest()
         cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
                "--held-out", str(args.held_out), "--threads", "1"]
-        with open(run_dir.parent / f"seed{seed}.log", "a") as log:
-            code = subprocess.run(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log, stderr=subprocess.STDOUT).returncode
-        if code != 0:
-            print(f"seed {seed}: held-out scoring exited with {code}\n{log_tail(run_dir.parent / f'seed{seed}.log')}")
+        log = open(run_dir.parent / f"seed{seed}.log", "a")
+        running.append((seed, run_dir, subprocess.Popen(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log,
+                                                        stderr=subprocess.STDOUT), log))
+    while running:
+        wait_oldest()
 
 
 def log_tail(path: Path, lines: int = 15) -> str:
