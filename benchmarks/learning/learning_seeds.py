@@ -117,8 +117,8 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
 
 def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
-    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread each, ``--parallel``
-    seeds at a time; a score already in the run's ``checkpoint_evals.json`` is reused)."""
+    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread each,
+    ``--parallel`` seeds at a time; a score already in the run's ``checkpoint_evals.json`` is reused)."""
     if not args.held_out:
         return
     running: list[tuple[int, Path, subprocess.Popen, object]] = []
@@ -138,8 +138,12 @@ def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
         cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
                "--held-out", str(args.held_out), "--threads", "1"]
         log = open(run_dir.parent / f"seed{seed}.log", "a")
-        running.append((seed, run_dir, subprocess.Popen(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log,
-                                                        stderr=subprocess.STDOUT), log))
+        try:
+            proc = subprocess.Popen(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log, stderr=subprocess.STDOUT)
+        except BaseException:
+            log.close()
+            raise
+        running.append((seed, run_dir, proc, log))
     while running:
         wait_oldest()
 
