@@ -11,7 +11,7 @@ import torch
 pytest.importorskip("robosuite")
 
 from torchrl_mpail2.envs.robosuite_env import RobosuiteEnv  # noqa: E402
-from torchrl_mpail2.envs.robosuite_observations import upright_chw  # noqa: E402
+from torchrl_mpail2.envs.robosuite_observations import EXTERNAL_CAMERA, WRIST_CAMERA, upright_chw  # noqa: E402
 from torchrl_mpail2.envs.robosuite_render import make_renderer_current  # noqa: E402
 
 IMAGE_KEYS = ("external_image", "wrist_image")
@@ -52,7 +52,7 @@ def test_closing_or_collecting_another_env_leaves_this_envs_frames_unchanged(ren
         del dropped
         gc.collect()
         raw = env.sim_env._get_observations(force_update=True)  # robosuite's own render, no context claimed, unchecked
-        frames = {"external_image": raw["agentview_image"], "wrist_image": raw["robot0_eye_in_hand_image"]}
+        frames = {"external_image": raw[f"{EXTERNAL_CAMERA}_image"], "wrist_image": raw[f"{WRIST_CAMERA}_image"]}
         _assert_same({key: torch.as_tensor(upright_chw(frame)) for key, frame in frames.items()}, expected,
                      "when another env was collected between claiming the context and rendering")
         _assert_same(_reset_frames(env), expected, "after another env was collected")

@@ -22,6 +22,8 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
+from torchrl_mpail2.diagnostics.figures import save_figure
+
 
 def critic_along_episodes(encoder, reward_net, episodes: list[TensorDict], window: int = 5,
                           eef_to_cube: slice | None = None, q_net=None, policy_net=None) -> list[dict]:
@@ -157,10 +159,7 @@ def plot_profiles(results: list[dict], out: str | Path) -> Path:
         twin.plot([r["step"] for r in rows], [100 * r["eef_to_cube_m"] for r in rows], ls=":", color="gray")
         twin.set_ylabel("end-effector to cube (cm, dotted)", color="gray")
     ax.set_title(f"critic and value along {Path(results[0]['demos']).name} (means over episodes)", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return Path(out)
+    return save_figure(fig, out, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -39,7 +39,8 @@ def storage_path(path: str | Path) -> Path:
     for candidate in (path / "replay_storage", path / "replay" / "storage", path):
         if (candidate / "meta.json").exists():
             return candidate
-    raise FileNotFoundError(f"{path}: no replay storage (looked for replay_storage/, replay/storage/ and the folder itself)")
+    raise FileNotFoundError(f"{path}: no replay storage (looked for replay_storage/, replay/storage/ and the folder "
+                            "itself)")
 
 
 def broken_frames(frames: Tensor) -> Tensor:
