@@ -179,7 +179,29 @@ def test_run_seeds_reports_a_failing_seed_with_its_log(bench, tmp_path, monkeypa
     args = type("Args", (), {"seeds": [0, 1], "runs_root": tmp_path, "name": "demo", "episodes": 10, "parallel": 2})()
     bench.run_seeds(args, [])
     out = capsys.readouterr().out
-    assert "seed 0: exited with 3" in out and "seed 0 broke" in out and "seed 1 broke" in out
+    assert "seed 0: training exited with 3" in out and "seed 0 broke" in out and "seed 1 broke" in out
+
+
+def test_each_seed_is_scored_held_out_as_its_training_ends_in_the_slot_it_frees(bench, tmp_path, monkeypatch):
+    """With one slot, seed 0's 50 held-out episodes (17 minutes on cameras) play before seed 2 trains, not after
+    every seed has trained; a seed whose training failed is not scored, one trained already is (scores reused)."""
+    import sys
+    events = tmp_path / "events"
+
+    def note(word, seed, code=0):
+        return [sys.executable, "-c", f"open({str(events)!r}, 'a').write('{word} {seed}\\n'); raise SystemExit({code})"]
+
+    def training(run_dir, seed, args, overrides):
+        run_dir.mkdir(parents=True, exist_ok=True)
+        return None if seed == 3 else note("train", seed, code=3 if seed == 1 else 0)
+
+    monkeypatch.setattr(bench, "seed_command", training)
+    monkeypatch.setattr(bench, "held_out_command", lambda run_dir, args: note("score", run_dir.name[-1]))
+    monkeypatch.setattr(bench.time, "sleep", lambda s: None)
+    args = type("Args", (), {"seeds": [0, 1, 2, 3], "runs_root": tmp_path, "name": "demo", "episodes": 10,
+                             "parallel": 1, "held_out": 50})()
+    bench.run_seeds(args, [])
+    assert events.read_text().split("\n")[:-1] == ["train 0", "score 0", "train 1", "train 2", "score 2", "score 3"]
 
 
 def _result_named(bench, tmp_path, name, seeds_evals, **config_changes):

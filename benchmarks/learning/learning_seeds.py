@@ -19,9 +19,9 @@ Lift), ``python -m benchmarks.learning.evaluate_checkpoints RUN --from-episode E
 chosen one on 50 other episodes, since a maximum over many checkpoints is biased upwards), and the summary then reports
 ``best_all_checkpoints_success_any_step`` and ``best_checkpoint_held_out_success_any_step`` beside the evaluations'.
 
-The headline of a configuration is its final checkpoint on episodes that chose nothing: once the seeds finish,
-each seed's last and Best evaluated checkpoints play ``--held-out`` (default 50, the paper's trials) other episodes
-(``evaluate_checkpoints.py --only-evaluated``), and the summary reports ``held_out_last`` and ``held_out_best``:
+The headline of a configuration is its final checkpoint on episodes that chose nothing: as soon as a seed finishes,
+its last and Best evaluated checkpoints play ``--held-out`` (default 50, the paper's trials) other episodes
+(``evaluate_checkpoints.py --only-evaluated``, in the slot the seed's training frees), and the summary reports ``held_out_last`` and ``held_out_best``:
 the mean over seeds, its 95% bootstrap interval over seeds and episodes and, from 3 seeds, the interquartile mean.
 
 Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
@@ -115,12 +115,30 @@ def seed_command(run_dir: Path, seed: int, args, overrides: list[str]) -> list[s
             f"train.eval_episodes={args.eval_episodes}", *overrides]
 
 
+def held_out_command(run_dir: Path, args) -> list[str] | None:
+    """The command that scores a seed's Best and last evaluated checkpoints on ``--held-out`` episodes
+    (``evaluate_checkpoints --only-evaluated``, one thread); None when none is asked for or the seed is not finished
+    (a stop signal's seed included: half an hour a checkpoint on cameras, for a seed that is not done)."""
+    if not getattr(args, "held_out", 0) or not finished(read_summary(run_dir)) or not (run_dir / "checkpoints").exists():
+        return None
+    return [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
+            "--held-out", str(args.held_out), "--threads", "1"]
+
+
+def _start(cmd: list[str], log_path: Path, env: dict) -> tuple[subprocess.Popen, object]:
+    """``cmd`` started with its output appended to ``log_path``; the log is closed again if it cannot start."""
+    log = open(log_path, "a")
+    try:
+        return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT), log
+    except BaseException:
+        log.close()
+        raise
+
+
 def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
-    (``python -m benchmarks.learning.evaluate_checkpoints --only-evaluated --held-out N``, one thread each,
-    ``--parallel`` seeds at a time; a score already in the run's ``checkpoint_evals.json`` is reused)."""
-    if not args.held_out:
-        return
+    (:func:`held_out_command`), ``--parallel`` seeds at a time; a score already in the run's
+    ``checkpoint_evals.json`` is reused. :func:`run_seeds` does this itself for the seeds it trains."""
     running: list[tuple[int, Path, subprocess.Popen, object]] = []
 
     def wait_oldest() -> None:
@@ -131,19 +149,11 @@ def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
             print(f"seed {seed}: held-out scoring exited with {code}\n{log_tail(run_dir.parent / f'seed{seed}.log')}")
 
     for seed, run_dir in seeds:
-        if not finished(read_summary(run_dir)) or not (run_dir / "checkpoints").exists():
-            continue  # held-out scores are for finished seeds only
+        if (cmd := held_out_command(run_dir, args)) is None:
+            continue
         if len(running) >= max(1, getattr(args, "parallel", 1)):
             wait_oldest()
-        cmd = [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
-               "--held-out", str(args.held_out), "--threads", "1"]
-        log = open(run_dir.parent / f"seed{seed}.log", "a")
-        try:
-            proc = subprocess.Popen(cmd, cwd=ROOT, env=child_env(threads=1), stdout=log, stderr=subprocess.STDOUT)
-        except BaseException:
-            log.close()
-            raise
-        running.append((seed, run_dir, proc, log))
+        running.append((seed, run_dir, *_start(cmd, run_dir.parent / f"seed{seed}.log", child_env(threads=1))))
     while running:
         wait_oldest()
 
@@ -156,36 +166,45 @@ def log_tail(path: Path, lines: int = 15) -> str:
 
 
 def run_seeds(args, overrides: list[str]) -> None:
-    """Trains the seeds ``--parallel`` at a time; a progress bar (on a terminal) counts the episodes of all seeds and
-    shows each seed's latest evaluation; a seed that fails has its log's last lines printed."""
+    """Trains the seeds ``--parallel`` at a time and scores each on its held-out episodes as soon as its training
+    ends, in the slot the training frees (before the next seed starts: a seed's headline need not wait for the
+    others' training). A progress bar (on a terminal) counts the episodes of all seeds and shows each seed's latest
+    evaluation; a seed that fails has its log's last lines printed."""
     from tqdm import tqdm
 
     seeds = [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds]
-    pending, running = list(seeds), []
+    pending = [(seed, run_dir, "training") for seed, run_dir in seeds]
+    running: list[tuple[int, Path, str, subprocess.Popen, object]] = []
     env = child_env(threads=1)
     bar = tqdm(total=len(seeds) * args.episodes, desc=args.name, unit="episode", disable=None)
     while pending or running:
         while pending and len(running) < args.parallel:
-            seed, run_dir = pending.pop(0)
-            cmd = seed_command(run_dir, seed, args, overrides)
+            seed, run_dir, job = pending.pop(0)
+            cmd = seed_command(run_dir, seed, args, overrides) if job == "training" else held_out_command(run_dir, args)
             if cmd is None:
-                bar.write(f"seed {seed}: done already ({run_dir})")
+                if job == "training":
+                    bar.write(f"seed {seed}: done already ({run_dir})")
+                    pending.insert(0, (seed, run_dir, "held-out scoring"))  # its scores are reused if there
                 continue
-            log = open(run_dir.parent / f"seed{seed}.log", "a")
             bar.write(f"seed {seed}: {' '.join(cmd)}")
-            running.append((seed, subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)))
+            running.append((seed, run_dir, job, *_start(cmd, run_dir.parent / f"seed{seed}.log", env)))
         time.sleep(5)
         if not bar.disable:  # the run folders are read only for a bar someone sees
             bar.n = sum(min(_episodes_done(run_dir), args.episodes) for _, run_dir in seeds)
             latest = {seed: _read_jsonl(run_dir / "eval.jsonl")[-1:] for seed, run_dir in seeds}
             bar.set_postfix_str(" ".join(f"s{seed}:{e[0].get('success_rate_any_step', float('nan')):.2f}@{e[0].get('episode')}"
                                          for seed, e in latest.items() if e))
-        for seed, proc in list(running):
-            if proc.poll() is not None:
-                bar.write(f"seed {seed}: exited with {proc.returncode}")
-                if proc.returncode != 0:
-                    bar.write(log_tail(dict(seeds)[seed].parent / f"seed{seed}.log"))
-                running.remove((seed, proc))
+        for entry in list(running):
+            seed, run_dir, job, proc, log = entry
+            if proc.poll() is None:
+                continue
+            running.remove(entry)
+            log.close()
+            bar.write(f"seed {seed}: {job} exited with {proc.returncode}")
+            if proc.returncode != 0:
+                bar.write(log_tail(run_dir.parent / f"seed{seed}.log"))
+            elif job == "training":
+                pending.insert(0, (seed, run_dir, "held-out scoring"))
     bar.close()
 
 
@@ -522,8 +541,7 @@ def main() -> None:
         result = summarize(args.name, args.runs_root, args.seeds)
     else:  # every seed of the name, those trained now and any trained before
         args.seeds = args.seeds or [0, 1]
-        run_seeds(args, overrides)
-        score_held_out(args, [(s, seed_dir(args.runs_root, args.name, s)) for s in args.seeds])
+        run_seeds(args, overrides)  # each seed scored on its held-out episodes as its training ends
         result = summarize(args.name, args.runs_root)
     print(json.dumps({k: v for k, v in result.items() if k not in ("config", "per_seed")}, indent=2))
 
