@@ -54,8 +54,8 @@ def resolve_update_precision(precision: str, device: torch.device | str = "cpu",
     reset states that differ only in the cube's place spread by 0.00037 (mean over dimensions), and encoding them
     under bf16 autocast moved them by 0.0074, twenty times that; a probe read the cube's place from the float32
     latents with R^2 0.97 and from the rounded ones with 0.46 (``diagnostics latent_content --bf16``,
-    docs/results/cameras.md); by episode 80 the float32-trained encoder had spread them past the rounding. Images keep
-    the reference precision until bf16 is shown to cost their learning nothing.
+    docs/results/diary/cameras_noise_frames.md); by episode 80 the float32-trained encoder had spread them past the
+    rounding. Images keep the reference precision until bf16 is shown to cost their learning nothing.
 
     Raises:
         ValueError: on a precision not in :data:`UPDATE_PRECISIONS`, or a bf16 one without a world model (the

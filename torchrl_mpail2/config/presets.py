@@ -84,7 +84,7 @@ PRESETS: dict[str, Preset] = {
         "(``model.image_norm=demos model.cnn_init=kaiming``: the untrained encoder spreads the pictures' latents) and "
         "the camera presets' reward (the raw critic, gradient penalty 10). Any-step success on the 10 fixed episodes "
         "at 10 / 20 / 30 / 40: seed 0 0.0 / 0.5 / 1.0 / 1.0, seed 1 0.0 / 1.0 / 1.0 / 0.6, seed 2 0.0 / 0.5 / 1.0 / 1.0 "
-        "(docs/results/cameras.md). It learns because the pictures glow around the point "
+        "(docs/results/camera_latent.md). It learns because the pictures glow around the point "
         "(``envs.point_mass.GLOW_SIGMA``): without the glow, seed 1 of the same settings scored 0.0 at 20, 30 and 40, "
         "its value lowest around the goal and its policy pushing to one corner from everywhere "
         "(``python -m torchrl_mpail2.diagnostics arena_map``); with the glow and the earlier settings (Table 4's latent "
@@ -96,7 +96,7 @@ PRESETS: dict[str, Preset] = {
         "picture and the state vector (``train.obs=pixels_state``), the demonstrations keep the picture alone, the "
         "latent is compartmentalised (two blocks of 32) and the reward reads the picture's block; otherwise "
         "``point_mass_pixels``. Seeds 0 and 1: any-step success 1.0 at 30 and 40 on the 10 fixed episodes, 1.00 on "
-        "50 held-out episodes at 40 (docs/results/cameras.md).",
+        "50 held-out episodes at 40 (docs/results/video_only.md).",
         {**POINT_MASS_PIXELS, "train.obs": "pixels_state", "train.demo_keys": ("external_image",),
          "model.latent_dim": 2 * POINT_MASS["model.latent_dim"], "model.fuse_latent": False,
          "model.reward_latent_keys": ("external_image",)}),

@@ -5,7 +5,7 @@ robosuite's scenes ask mujoco for a 4096 shadow map, reflections, a skybox and 4
 offscreen buffer. On a CPU (Mesa's llvmpipe through EGL) that made a 64 x 64 frame cost 59 ms (27 ms to draw,
 32 ms to resolve and read the multisampled buffer). :func:`use_light_renderer` turns shadows, reflections, the skybox
 and multisampling off and sizes the offscreen buffer to the images; the cube, the table, the line and the arm keep
-their colours and the lighting, so everything the tasks need stays visible (``docs/cameras.md`` shows both
+their colours and the lighting, so everything the tasks need stays visible (``docs/results/camera_speed.md`` shows both
 renderers' frames side by side). Evaluation videos of state runs keep robosuite's full renderer.
 
 It also frees each context safely. robosuite frees an offscreen context when the context is collected, and mujoco

@@ -8,8 +8,8 @@ Each frame ``o`` of a batch is moved by its own integer offset ``(dy, dx)``, dra
 
 the same as padding the frame by ``p`` replicated pixels and cropping an ``H x W`` window at a random place.
 Pixel-based agents (DrQ, TD-MPC2) train their encoders on frames shifted this way (``p = 4`` at 64 x 64), meant to
-give nearby places nearby latents; on the point mass from pixels it did not help (docs/results/cameras.md). The agent
-acts on the frames as they are.
+give nearby places nearby latents; on the point mass from pixels it did not help (docs/results/camera_latent.md). The
+agent acts on the frames as they are.
 """
 from __future__ import annotations
 
