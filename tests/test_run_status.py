@@ -46,6 +46,19 @@ def test_each_state_of_a_seed_folder_is_told_apart(tmp_path):
     assert table.count("\n| a |") == 5
 
 
+def test_training_successes_count_acted_episodes_and_name_the_first(tmp_path):
+    run = _seed(tmp_path, "a", 0, 0, 100)
+    rows = [{"episode": 1, "success_any_step": 1.0, "random_actions": True},  # the warm-up's luck does not count
+            {"episode": 2, "success_any_step": 0.0, "random_actions": False},
+            {"episode": 3, "success_any_step": 1.0, "random_actions": False},
+            {"episode": 4, "success_any_step": 1.0, "random_actions": False}]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    row = seed_status(run)
+    assert row["training successes"] == "2 (first at 3)" and row["episodes"] == "4 of 100"
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows[:2]))
+    assert seed_status(run)["training successes"] == "0"
+
+
 def test_an_unknown_run_name_is_named(tmp_path):
     (tmp_path / "a").mkdir()
     with pytest.raises(SystemExit, match="nope"):

@@ -5,7 +5,8 @@
 
 One row per seed folder (``runs/learning/NAME/seed<k>``): episodes done of the run's budget, whether a training holds
 the folder now (its lock), finished, stopped by a signal or at its wall-clock budget (resumable by the same
-``learning_seeds`` command), the latest evaluation on the fixed episodes, the held-out scores once played, and the
+``learning_seeds`` command), how many training episodes succeeded at some step (sampled actions; the warm-up's
+random episodes left out) and the first of them, the latest evaluation on the fixed episodes, the held-out scores once played, and the
 wall time of its launches so far.
 """
 from __future__ import annotations
@@ -19,7 +20,8 @@ from benchmarks.learning.learning_seeds import _read_jsonl, read_summary
 from benchmarks.records import ROOT
 from torchrl_mpail2.trainers.run_folder import LOCK_FILE
 
-COLUMNS = ("run", "seed", "episodes", "state", "last evaluation", "held out: Best / last", "wall (min)")
+COLUMNS = ("run", "seed", "episodes", "state", "training successes", "last evaluation", "held out: Best / last",
+           "wall (min)")
 
 
 def held_by_a_training(run_dir: Path) -> bool:
@@ -55,9 +57,16 @@ def _held_out(run_dir: Path) -> str:
     return " / ".join(show)
 
 
+def _training_successes(episodes: list[dict]) -> str:
+    """``N (first at E)``: the acted training episodes (not the warm-up's random ones) that succeeded at some step."""
+    hits = [row["episode"] for row in episodes if row.get("success_any_step", 0) > 0 and not row.get("random_actions")]
+    return f"{len(hits)} (first at {hits[0]})" if hits else "0"
+
+
 def seed_status(run_dir: Path) -> dict:
     """One seed's row (see the module docstring)."""
-    done = len(_read_jsonl(run_dir / "metrics.jsonl"))
+    episodes = _read_jsonl(run_dir / "metrics.jsonl")
+    done = len(episodes)
     budget = _budget(run_dir)
     summary = read_summary(run_dir)
     parts = [json.loads(p.read_text()) for p in sorted(run_dir.glob("summary.part*.json"))]
@@ -78,7 +87,8 @@ def seed_status(run_dir: Path) -> dict:
     wall = max([s.get("run_wall_time_s", 0.0) for s in launches] + [sum(s.get("wall_time_s", 0.0) for s in launches)],
                default=0.0)
     return {"run": run_dir.parent.name, "seed": run_dir.name.removeprefix("seed"),
-            "episodes": f"{done} of {budget}" if budget else str(done), "state": state, "last evaluation": last,
+            "episodes": f"{done} of {budget}" if budget else str(done), "state": state,
+            "training successes": _training_successes(episodes), "last evaluation": last,
             "held out: Best / last": _held_out(run_dir), "wall (min)": f"{wall / 60:.0f}" if wall else "-"}
 
 
