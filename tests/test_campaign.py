@@ -54,7 +54,8 @@ def test_jobs_start_as_cores_free_and_a_later_job_that_fits_goes_first(tmp_path,
     ([{"args": "x"}, {"args": "--preset lift_state"}], r"jobs\[1\].args must begin with the run's NAME"),
     ([{"args": "x", "slots": 3}], r"jobs\[0\].slots=3: expected an integer from 1 to --slots \(2\)"),
     ([{"args": "x", "checkout": "nowhere"}], r"jobs\[0\].checkout .*nowhere holds no benchmarks"),
-    ([{"args": "x --seeds 0"}, {"args": "x --seeds 1"}], r"runs \['x'\] twice in one checkout"),
+    ([{"args": "x --seeds 0"}, {"args": "x --seeds 1"}], r"names \['x'\] twice"),
+    ([{"args": "x", "checkout": 3}], r"jobs\[0\].checkout must be a folder's path, not 3"),
 ])
 def test_a_bad_queue_is_refused_naming_the_job_and_field(tmp_path, jobs, message):
     with pytest.raises(SystemExit, match=message):
@@ -72,4 +73,5 @@ def test_an_unreadable_queue_is_refused_by_its_path(tmp_path):
 def test_dry_run_prints_each_command_in_its_checkout(tmp_path, capsys):
     campaign.main([str(_queue(tmp_path, [{"args": "x --seeds 0", "checkout": str(ROOT)}])), "--dry-run"])
     out = capsys.readouterr().out
-    assert out.startswith(f"[1 core(s)] cd {ROOT} && {sys.executable} -m benchmarks.learning.learning_seeds x --seeds 0")
+    command = f"{sys.executable} -m benchmarks.learning.learning_seeds x --seeds 0"
+    assert out.startswith(f"[1 core(s)] cd {ROOT} && {command}")

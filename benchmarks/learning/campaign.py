@@ -85,6 +85,8 @@ def read_queue(path: Path, slots: int) -> list[Job]:
             raise SystemExit(f"campaign: {where}.args must be the learning_seeds arguments, NAME first")
         if args[0].startswith("-"):
             raise SystemExit(f"campaign: {where}.args must begin with the run's NAME, not {args[0]!r}")
+        if not isinstance(entry.get("checkout", ""), str):
+            raise SystemExit(f"campaign: {where}.checkout must be a folder's path, not {entry['checkout']!r}")
         checkout = Path(entry.get("checkout", ROOT))
         checkout = checkout if checkout.is_absolute() else (path.parent / checkout).resolve()
         if not (checkout / "benchmarks" / "learning" / "learning_seeds.py").exists():
@@ -93,10 +95,11 @@ def read_queue(path: Path, slots: int) -> list[Job]:
         if not isinstance(cores, int) or isinstance(cores, bool) or not 1 <= cores <= slots:
             raise SystemExit(f"campaign: {where}.slots={cores!r}: expected an integer from 1 to --slots ({slots})")
         jobs.append(Job(args, checkout, cores))
-    names = [(j.checkout, j.name) for j in jobs]
-    repeated = sorted({n for c, n in names if names.count((c, n)) > 1})
+    names = [j.name for j in jobs]
+    repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
-        raise SystemExit(f"campaign: {path} runs {repeated} twice in one checkout: two jobs would share a run folder")
+        raise SystemExit(f"campaign: {path} names {repeated} twice: each job needs its own NAME (its run folder, log "
+                         "and exit code go by it)")
     return jobs
 
 

@@ -21,8 +21,9 @@ chosen one on 50 other episodes, since a maximum over many checkpoints is biased
 
 The headline of a configuration is its final checkpoint on episodes that chose nothing: as soon as a seed finishes,
 its last and Best evaluated checkpoints play ``--held-out`` (default 50, the paper's trials) other episodes
-(``evaluate_checkpoints.py --only-evaluated``, in the slot the seed's training frees), and the summary reports ``held_out_last`` and ``held_out_best``:
-the mean over seeds, its 95% bootstrap interval over seeds and episodes and, from 3 seeds, the interquartile mean.
+(``evaluate_checkpoints.py --only-evaluated``, in the slot the seed's training frees), and the summary reports
+``held_out_last`` and ``held_out_best``: the mean over seeds, its 95% bootstrap interval over seeds and episodes
+and, from 3 seeds, the interquartile mean.
 
 Writes ``docs/results/learning/NAME.json`` (``task``, ``obs``, ``config``, ``seeds``, ``eval_episodes``,
 ``curve`` with the mean and std over seeds, ``best_success_any_step``, ``last_success_any_step``,
@@ -119,7 +120,9 @@ def held_out_command(run_dir: Path, args) -> list[str] | None:
     """The command that scores a seed's Best and last evaluated checkpoints on ``--held-out`` episodes
     (``evaluate_checkpoints --only-evaluated``, one thread); None when none is asked for or the seed is not finished
     (a stop signal's seed included: half an hour a checkpoint on cameras, for a seed that is not done)."""
-    if not getattr(args, "held_out", 0) or not finished(read_summary(run_dir)) or not (run_dir / "checkpoints").exists():
+    if not getattr(args, "held_out", 0) or not (run_dir / "checkpoints").exists():
+        return None
+    if not finished(read_summary(run_dir)):
         return None
     return [sys.executable, "-m", "benchmarks.learning.evaluate_checkpoints", str(run_dir), "--only-evaluated",
             "--held-out", str(args.held_out), "--threads", "1"]

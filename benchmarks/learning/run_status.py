@@ -6,8 +6,8 @@
 One row per seed folder (``runs/learning/NAME/seed<k>``): episodes done of the run's budget, whether a training holds
 the folder now (its lock), finished, stopped by a signal or at its wall-clock budget (resumable by the same
 ``learning_seeds`` command), how many training episodes succeeded at some step (sampled actions; the warm-up's
-random episodes left out) and the first of them, the latest evaluation on the fixed episodes, the held-out scores once played, and the
-wall time of its launches so far.
+random episodes left out) and the first of them, the latest evaluation on the fixed episodes, the held-out scores
+once played, and the wall time of its launches so far.
 """
 from __future__ import annotations
 
