@@ -13,15 +13,26 @@ ROOT = Path(__file__).resolve().parents[1]
 """The checkout these benchmarks belong to (children run there, results default under its ``docs/results``)."""
 
 
-def child_env(threads: int | None = None) -> dict:
-    """``os.environ`` for a benchmark's child process: this checkout first on ``PYTHONPATH``, then whatever the
-    caller's ``PYTHONPATH`` held (packages installed outside the environment, as on a borrowed GPU machine), and
-    ``OMP_NUM_THREADS`` where ``threads`` is given."""
-    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
-    env = {**os.environ, "PYTHONPATH": path}
+def child_env(threads: int | None = None, root: Path = ROOT) -> dict:
+    """``os.environ`` for a benchmark's child process: the checkout ``root`` first on ``PYTHONPATH`` (once: a caller
+    that already put it there is not repeated), then whatever the caller's ``PYTHONPATH`` held (packages installed
+    outside the environment, as on a borrowed GPU machine), and ``OMP_NUM_THREADS`` where ``threads`` is given."""
+    caller = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != str(root)]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), *caller])}
     if threads is not None:
         env["OMP_NUM_THREADS"] = str(threads)
     return env
+
+
+def start_logged(cmd: list[str], log_path: Path, cwd: Path, env: dict) -> tuple[subprocess.Popen, object]:
+    """``cmd`` started in ``cwd`` with its output appended to ``log_path``; returns the process and the open log (the
+    caller closes it when the process ends; it is closed here if the process cannot start)."""
+    log = open(log_path, "a")
+    try:
+        return subprocess.Popen(cmd, cwd=cwd, env=env, stdout=log, stderr=subprocess.STDOUT), log
+    except BaseException:
+        log.close()
+        raise
 
 
 def git_commit(where: Path, short: bool = True) -> str | None:

@@ -1,5 +1,6 @@
 """The campaign queue keeps its cores busy in the queue's order and refuses a bad queue by job and field."""
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -26,6 +27,7 @@ def test_jobs_start_as_cores_free_and_a_later_job_that_fits_goes_first(tmp_path,
         def __init__(self, cmd, cwd, env, **kwargs):
             self.name, self.polls, self.returncode = cmd[3], 0, None
             assert env["OMP_NUM_THREADS"] == "1" and env["PYTHONPATH"].split(":")[0] == str(cwd)
+            assert env["PYTHONPATH"].split(":").count(str(cwd)) == 1
             events.append(f"start {self.name}")
 
         def poll(self):
@@ -35,7 +37,7 @@ def test_jobs_start_as_cores_free_and_a_later_job_that_fits_goes_first(tmp_path,
                 events.append(f"end {self.name}")
             return self.returncode
 
-    monkeypatch.setattr(campaign.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(subprocess, "Popen", FakeProcess)
     monkeypatch.setattr(campaign.time, "sleep", lambda s: None)
     jobs = campaign.read_queue(_queue(tmp_path, [
         {"args": "a --seeds 0", "checkout": str(ROOT)}, {"args": ["b", "--seeds", "1"]},

@@ -143,6 +143,9 @@ def test_child_processes_import_the_checkout_first_and_keep_the_callers_path(ben
     assert env["OMP_NUM_THREADS"] == "1"
     monkeypatch.delenv("PYTHONPATH")
     assert bench.child_env()["PYTHONPATH"] == str(ROOT)
+    # a caller (the campaign runner) that put the checkout first already does not get it twice
+    monkeypatch.setenv("PYTHONPATH", f"{ROOT}:/opt/extra/site")
+    assert bench.child_env()["PYTHONPATH"].split(":") == [str(ROOT), "/opt/extra/site"]
 
 
 def test_training_success_is_windowed_after_the_warm_up_and_averaged_over_seeds(bench, tmp_path):

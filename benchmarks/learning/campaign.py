@@ -24,15 +24,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks.records import ROOT
+from benchmarks.records import ROOT, child_env, start_logged
 
 JOB_FIELDS = {"checkout", "args", "slots"}
 
@@ -57,8 +55,7 @@ class Job:
 
     def env(self) -> dict:
         """The caller's environment with the job's checkout first on ``PYTHONPATH`` and one torch thread."""
-        path = os.pathsep.join(p for p in (str(self.checkout), os.environ.get("PYTHONPATH", "")) if p)
-        return {**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"}
+        return child_env(threads=1, root=self.checkout)
 
 
 def read_queue(path: Path, slots: int) -> list[Job]:
@@ -112,14 +109,7 @@ def run_campaign(jobs: list[Job], slots: int, poll_s: float = 10.0) -> dict[str,
             if job.slots <= free:
                 pending.remove(job)
                 job.log.parent.mkdir(parents=True, exist_ok=True)
-                log = open(job.log, "a")
-                try:
-                    proc = subprocess.Popen(job.command(), cwd=job.checkout, env=job.env(), stdout=log,
-                                            stderr=subprocess.STDOUT)
-                except BaseException:
-                    log.close()
-                    raise
-                running.append((job, proc, log))
+                running.append((job, *start_logged(job.command(), job.log, job.checkout, job.env())))
                 free -= job.slots
                 print(f"{time.strftime('%H:%M:%S')} started {job.name} ({job.slots} core(s), {job.checkout}); "
                       f"log {job.log}", flush=True)

@@ -46,7 +46,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.records import ROOT, child_env, git_commit
+from benchmarks.records import ROOT, child_env, git_commit, start_logged
 from torchrl_mpail2.trainers.intervals import bootstrap_ci, iqm
 
 RESULTS = ROOT / "docs" / "results" / "learning"
@@ -128,16 +128,6 @@ def held_out_command(run_dir: Path, args) -> list[str] | None:
             "--held-out", str(args.held_out), "--threads", "1"]
 
 
-def _start(cmd: list[str], log_path: Path, env: dict) -> tuple[subprocess.Popen, object]:
-    """``cmd`` started with its output appended to ``log_path``; the log is closed again if it cannot start."""
-    log = open(log_path, "a")
-    try:
-        return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT), log
-    except BaseException:
-        log.close()
-        raise
-
-
 def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
     """Each finished seed's Best and last evaluated checkpoints scored on ``--held-out`` episodes that chose nothing
     (:func:`held_out_command`), ``--parallel`` seeds at a time; a score already in the run's
@@ -156,7 +146,7 @@ def score_held_out(args, seeds: list[tuple[int, Path]]) -> None:
             continue
         if len(running) >= max(1, getattr(args, "parallel", 1)):
             wait_oldest()
-        running.append((seed, run_dir, *_start(cmd, run_dir.parent / f"seed{seed}.log", child_env(threads=1))))
+        running.append((seed, run_dir, *start_logged(cmd, run_dir.parent / f"seed{seed}.log", ROOT, child_env(threads=1))))
     while running:
         wait_oldest()
 
@@ -190,7 +180,7 @@ def run_seeds(args, overrides: list[str]) -> None:
                     pending.insert(0, (seed, run_dir, "held-out scoring"))  # its scores are reused if there
                 continue
             bar.write(f"seed {seed}: {' '.join(cmd)}")
-            running.append((seed, run_dir, job, *_start(cmd, run_dir.parent / f"seed{seed}.log", env)))
+            running.append((seed, run_dir, job, *start_logged(cmd, run_dir.parent / f"seed{seed}.log", ROOT, env)))
         time.sleep(5)
         if not bar.disable:  # the run folders are read only for a bar someone sees
             bar.n = sum(min(_episodes_done(run_dir), args.episodes) for _, run_dir in seeds)
